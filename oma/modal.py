@@ -78,6 +78,9 @@ class ModalModel:
         object.__setattr__(self, "natural_frequency_hz", _readonly(fn))
         object.__setattr__(self, "damping_ratio", _readonly(zeta))
         object.__setattr__(self, "stiffness_N_m", _readonly(k))
+        # Directions already of unit length (to rounding) are kept as given, so that building a
+        # model from another model's directions (e.g. a model read back from its file) is exact.
+        norms = np.where(np.abs(norms - 1.0) <= 4 * np.finfo(float).eps, 1.0, norms)
         object.__setattr__(self, "directions", _readonly(u / norms[:, None]))
         object.__setattr__(
             self, "residual_compliance_m_N", _readonly(np.reshape(self.residual_compliance_m_N, (3, 3)))
