@@ -1,0 +1,785 @@
+"""Time-domain simulation of a milling cut on a structure given by a modal model.
+
+The simulator produces what a test cell would record: the force on the tool and the tool-tip
+displacement, both as the truth at the internal integration rate and as measured by sensors at the
+record's sample rate. It follows the force model and sign conventions of formats.md ("Frames and
+signs", "Force model"):
+
+* structure: the modes of an :class:`oma.modal.ModalModel`, ``m_r q_r'' + c_r q_r' + k_r q_r =
+  u_r . F``, tool tip ``sum_r u_r q_r + residual_compliance @ F``;
+* regenerative chip ``h = fz sin(phi) + (q(t) - q(t - T)) . (sin(phi) f + cos(phi) n)`` per axial
+  slice and tooth, cutting only between the entry and exit angles and where ``h > 0``;
+* linear-plus-edge forces ``dFt = (Ktc h + Kte) dz`` ... projected on ``f, n, a``;
+* broadband background force (the excitation operational modal analysis relies on, Nguyen &
+  Melkote 2020) acting on the structure and seen by the force sensor;
+* sensor models: anti-alias filter, sampling, noise, resolution;
+* optional effects (:class:`Effects`), each off by default.
+
+Integration (see :mod:`stability._sim_kernel`): exact first-order-hold discretisation of every mode
+(matrix exponential, force linear between steps), an integer number of steps per tooth period so the
+delay line is exact, one predictor step for the force at the new time. A residual compliance enters
+the chip thickness with the force of the previous step (one step of lag breaks the algebraic loop
+it would close); the reported displacement uses the force of the same step.
+
+Step rule (when ``steps_per_tooth`` is not given)::
+
+    steps_per_tooth = max(50, ceil(20 f_hi T), ceil(4 fs T), ceil(4 B T))
+
+with ``T`` the tooth period, ``f_hi`` the highest natural frequency (after pose drift) or the
+force-sensor resonance, ``fs`` the record's sample rate and ``B`` the background bandwidth: at least
+50 steps per tooth period, 20 per period of the fastest mode, an internal rate of at least four
+times the record rate (the cubic resampling then errs by < 1e-3 at 0.4 fs) and of four times the
+background bandwidth.
+
+Measured signals: the internal-rate signals pass a zero-phase 8th-order Butterworth low-pass at
+0.4 fs (``scipy.signal.sosfiltfilt``: |H|^2 of order 8, flat to 1 % up to 0.3 fs, -28 dB at the
+first frequency that aliases onto 0.4 fs), are resampled at the record times with a cubic spline,
+then get white noise and are quantised. Zero phase means force and displacement stay aligned: an
+FRF estimated from them is not biased by the filter.
+
+References
+----------
+Altintas, Y., & Budak, E. (1995). Analytical prediction of stability lobes in milling. CIRP Annals,
+44(1), 357-362.
+Budak, E., & Tunc, L. T. (2009). A new method for identification and modeling of process damping in
+machining. CIRP Annals, 58(1), 81-84.
+Nguyen, V., & Melkote, S. (2020). Identification of industrial robot frequency response function
+for robotic milling using operational modal analysis. Procedia Manufacturing, 48, 154-159.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from oma.cutting import Cut, CuttingCoefficients, Material, Sensors, Tool, engagement_angles
+from oma.errors import InputError
+from oma.modal import ModalModel
+from oma.record import Channel, Record
+
+from . import _sim_kernel
+
+__all__ = [
+    "Runout",
+    "ForceSensorDynamics",
+    "ProcessDamping",
+    "PoseDrift",
+    "NonlinearCutting",
+    "Effects",
+    "BackgroundForce",
+    "SensorModel",
+    "SimulationResult",
+    "simulate",
+    "default_steps_per_tooth",
+    "default_axial_slices",
+]
+
+#: Minimum internal steps per tooth period.
+MIN_STEPS_PER_TOOTH = 50
+#: Minimum internal steps per period of the fastest mode (or sensor resonance).
+STEPS_PER_MODE_PERIOD = 20
+#: Minimum ratio of the internal rate to the record rate and to the background bandwidth.
+OVERSAMPLING = 4
+#: Anti-alias cut-off as a fraction of the record's sample rate, and filter order (per pass).
+ANTI_ALIAS_FRACTION = 0.4
+ANTI_ALIAS_ORDER = 8
+#: Default axial slices with a helix: at least this many ...
+MIN_HELIX_SLICES = 12
+#: ... and at most this much helix lag per slice, rad.
+MAX_SLICE_LAG_RAD = math.radians(2.0)
+#: Order of the Butterworth low-pass that shapes the background force.
+BACKGROUND_ORDER = 4
+#: Pose drift: at most this many piecewise-constant segments of the modal parameters.
+MAX_DRIFT_SEGMENTS = 2048
+
+
+# ------------------------------------------------------------------------------------- checks
+def _positive(value, field_name: str, *, allow_zero: bool = False) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        x = float("nan")
+    ok = math.isfinite(x) and (x >= 0.0 if allow_zero else x > 0.0)
+    if not ok:
+        raise InputError(None, field_name, "a finite number >= 0" if allow_zero else "a finite number > 0",
+                         repr(value))
+    return x
+
+
+def _finite(value, field_name: str) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        x = float("nan")
+    if not math.isfinite(x):
+        raise InputError(None, field_name, "a finite number", repr(value))
+    return x
+
+
+# ------------------------------------------------------------------------------------ effects
+@dataclass(frozen=True)
+class Runout:
+    """Radial runout of the teeth.
+
+    Tooth ``j`` (at immersion ``phi_j = Omega t + 2 pi j / N``) cuts on radius ``R + rho_j`` with
+    ``rho_j = amplitude_m cos(phase_rad - 2 pi j / N)``: the projection of a tool-axis offset of
+    ``amplitude_m`` onto each tooth. The chip of tooth ``j`` grows by ``rho_j - rho_{j+1}``, where
+    tooth ``j + 1`` (mod N) is the one that passed the same angle one tooth period earlier. This is
+    the usual first-order approximation: it ignores that a tooth following one that left the cut
+    removes material left by teeth further back.
+
+    Parameters
+    ----------
+    amplitude_m : float
+        Offset of the tool axis, m (>= 0).
+    phase_rad : float
+        Angle of the offset from tooth 0, rad.
+    """
+
+    amplitude_m: float
+    phase_rad: float = 0.0
+
+    def __post_init__(self):
+        _positive(self.amplitude_m, "effects.runout.amplitude_m", allow_zero=True)
+        _finite(self.phase_rad, "effects.runout.phase_rad")
+
+    def radii_offsets(self, teeth: int) -> np.ndarray:
+        """``rho_j`` of each tooth, shape (teeth,), m."""
+        j = np.arange(teeth)
+        return self.amplitude_m * np.cos(self.phase_rad - 2.0 * np.pi * j / teeth)
+
+    def chip_increments(self, teeth: int) -> np.ndarray:
+        """``rho_j - rho_{j+1}``: the chip added to each tooth, shape (teeth,), m."""
+        rho = self.radii_offsets(teeth)
+        return rho - np.roll(rho, -1)
+
+
+@dataclass(frozen=True)
+class ForceSensorDynamics:
+    """A resonance of the force sensor, applied to the MEASURED force only.
+
+    ``H(s) = w_s^2 / (s^2 + 2 zeta_s w_s s + w_s^2)``: unit static gain, the flange sensor and the
+    tool-spindle mass as a 2nd-order system. Discretised exactly (first-order hold) at the internal
+    rate.
+
+    Parameters
+    ----------
+    frequency_hz : float
+        Resonance frequency, Hz.
+    damping_ratio : float
+        Damping ratio of the resonance.
+    """
+
+    frequency_hz: float
+    damping_ratio: float = 0.05
+
+    def __post_init__(self):
+        _positive(self.frequency_hz, "effects.force_sensor.frequency_hz")
+        _positive(self.damping_ratio, "effects.force_sensor.damping_ratio")
+
+    def response(self, freq_hz) -> np.ndarray:
+        """Complex gain ``H`` at frequencies in Hz (measured force / true force)."""
+        r = np.asarray(freq_hz, dtype=float) / self.frequency_hz
+        return 1.0 / (1.0 - r**2 + 2j * self.damping_ratio * r)
+
+
+@dataclass(frozen=True)
+class ProcessDamping:
+    """Process damping from flank rubbing (Budak & Tunc, CIRP Annals 58, 2009).
+
+    Each engaged slice adds a radial force on the tool ``dF_pd = -C (v_r / V) dz`` along the radial
+    unit vector ``r = sin(phi) f + cos(phi) n``, with ``v_r = v . r`` the tool velocity along ``r``
+    and ``V = pi D n / 60`` the cutting speed. When the tool moves into the surface (``v_r > 0``)
+    the force pushes it back: its power ``-C v_r^2 dz / V`` is never positive, so it only removes
+    energy. In the force model it is an addition ``C v_r / V dz`` to ``dFr``.
+
+    Parameters
+    ----------
+    coefficient_N_m : float
+        ``C``, N/m (>= 0).
+    """
+
+    coefficient_N_m: float
+
+    def __post_init__(self):
+        _positive(self.coefficient_N_m, "effects.process_damping.coefficient_N_m", allow_zero=True)
+
+
+@dataclass(frozen=True)
+class PoseDrift:
+    """The arm moves along the cut and its modes drift.
+
+    Every natural frequency scales by ``1 + relative_change * t / duration``; the modal mass and
+    damping ratio stay constant (so the stiffness scales with ``w^2``). The modal parameters are
+    piecewise constant over segments of whole tooth periods (at most 2048 segments), evaluated at
+    the segment mid-time.
+
+    Parameters
+    ----------
+    relative_change : float
+        Relative change of every natural frequency from start to end of the record (> -1).
+    """
+
+    relative_change: float
+
+    def __post_init__(self):
+        x = _finite(self.relative_change, "effects.pose_drift.relative_change")
+        if x <= -1.0:
+            raise InputError(None, "effects.pose_drift.relative_change", "a number > -1", repr(x))
+
+
+@dataclass(frozen=True)
+class NonlinearCutting:
+    """Size effect: ``Ktc, Krc, Kac`` multiplied by ``(h / h_ref)^(-p)``; edge terms unchanged.
+
+    Parameters
+    ----------
+    exponent_p : float
+        ``p`` (0 = linear model; typically 0.1-0.4, < 1).
+    reference_chip_m : float, optional
+        ``h_ref``, m; default the feed per tooth of the cut.
+    """
+
+    exponent_p: float
+    reference_chip_m: float | None = None
+
+    def __post_init__(self):
+        p = _finite(self.exponent_p, "effects.nonlinear_cutting.exponent_p")
+        if p >= 1.0:
+            raise InputError(None, "effects.nonlinear_cutting.exponent_p", "a number < 1", repr(p))
+        if self.reference_chip_m is not None:
+            _positive(self.reference_chip_m, "effects.nonlinear_cutting.reference_chip_m")
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Named effects that make real data depart from the simple model; every one off by default.
+
+    Parameters
+    ----------
+    runout : Runout, optional
+    force_sensor : ForceSensorDynamics, optional
+    channel_delay_s : float
+        The measured displacement lags the measured force by this time, s (negative: leads).
+        Applied exactly when resampling (the displacement is read at ``t - delay``).
+    process_damping : ProcessDamping, optional
+    pose_drift : PoseDrift, optional
+    nonlinear_cutting : NonlinearCutting, optional
+    """
+
+    runout: Runout | None = None
+    force_sensor: ForceSensorDynamics | None = None
+    channel_delay_s: float = 0.0
+    process_damping: ProcessDamping | None = None
+    pose_drift: PoseDrift | None = None
+    nonlinear_cutting: NonlinearCutting | None = None
+
+    def __post_init__(self):
+        _finite(self.channel_delay_s, "effects.channel_delay_s")
+
+
+@dataclass(frozen=True)
+class BackgroundForce:
+    """Broadband background force: zero-mean Gaussian, independent per machine axis.
+
+    White noise shaped by a 4th-order Butterworth low-pass (``bandwidth_hz`` is its -3 dB
+    frequency), scaled so that the stationary variance per axis is ``variance_N2``. It acts on the
+    structure and is part of the measured force.
+
+    Parameters
+    ----------
+    variance_N2 : array_like, shape (3,)
+        Variance along X, Y, Z, N^2 (Nguyen & Melkote 2020 found 232, 278, 251 N^2).
+    bandwidth_hz : float
+        Low-pass cut-off, Hz.
+    """
+
+    variance_N2: tuple[float, float, float]
+    bandwidth_hz: float
+
+    def __post_init__(self):
+        v = np.array(self.variance_N2, dtype=float).ravel()
+        if v.shape != (3,) or not np.all(np.isfinite(v)) or np.any(v < 0):
+            raise InputError(None, "background.variance_N2", "three finite numbers >= 0 (X, Y, Z)",
+                             repr(self.variance_N2))
+        object.__setattr__(self, "variance_N2", tuple(float(x) for x in v))
+        _positive(self.bandwidth_hz, "background.bandwidth_hz")
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """How the force sensor and the displacement sensor see the truth.
+
+    Parameters
+    ----------
+    force_noise_variance_N2 : float
+        White noise added to each measured force sample, N^2.
+    displacement_noise_m : float
+        Standard deviation of white noise added to each displacement sample, m.
+    displacement_resolution_m : float
+        Quantisation step of the displacement, m (0: none; a laser tracker: 1.5e-5).
+    anti_alias : bool
+        Low-pass before sampling (see the module notes); without it the record samples the
+        internal signals directly, aliasing included.
+    force_resolution_N : float
+        Quantisation step of the force, N (0: none).
+    """
+
+    force_noise_variance_N2: float = 0.0
+    displacement_noise_m: float = 0.0
+    displacement_resolution_m: float = 0.0
+    anti_alias: bool = True
+    force_resolution_N: float = 0.0
+
+    def __post_init__(self):
+        for name in ("force_noise_variance_N2", "displacement_noise_m", "displacement_resolution_m",
+                     "force_resolution_N"):
+            _positive(getattr(self, name), f"sensors.{name}", allow_zero=True)
+
+    def to_sensors(self) -> Sensors:
+        """The record's :class:`oma.cutting.Sensors` (unset where the model has none)."""
+        return Sensors(
+            force_noise_variance_N2=self.force_noise_variance_N2 or None,
+            force_resolution_N=self.force_resolution_N or None,
+            displacement_resolution_m=self.displacement_resolution_m or None,
+        )
+
+
+# ------------------------------------------------------------------------------------- result
+def _readonly(a) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Signals of one simulated cut.
+
+    Attributes
+    ----------
+    time_s : ndarray, shape (n,)
+        Internal time grid, s (``k * T / steps_per_tooth``).
+    force_N : ndarray, shape (3, n)
+        True force on the structure (cutting plus background), machine frame, N.
+    displacement_m : ndarray, shape (3, n)
+        True tool-tip displacement, machine frame, m.
+    record_time_s : ndarray, shape (n_rec,)
+        Record sample times ``i / sample_rate_hz``, s.
+    measured_force_N, measured_displacement_m : ndarray, shape (3, n_rec)
+        What the sensors record (effects on measurement, filter, noise, resolution applied).
+    sample_rate_hz : float
+        Record rate, Hz.
+    steps_per_tooth : int
+        Internal steps per tooth period.
+    axial_slices : int
+    tool, cut : Tool, Cut
+        The cut has the simulated spindle speed and axial depth filled in.
+    coefficients : CuttingCoefficients
+    effects : Effects
+    sensors : SensorModel
+    background : BackgroundForce or None
+    regeneration : bool
+    """
+
+    time_s: np.ndarray
+    force_N: np.ndarray
+    displacement_m: np.ndarray
+    record_time_s: np.ndarray
+    measured_force_N: np.ndarray
+    measured_displacement_m: np.ndarray
+    sample_rate_hz: float
+    steps_per_tooth: int
+    axial_slices: int
+    tool: Tool
+    cut: Cut
+    coefficients: CuttingCoefficients
+    effects: Effects = Effects()
+    sensors: SensorModel = SensorModel()
+    background: BackgroundForce | None = None
+    regeneration: bool = True
+
+    def __post_init__(self):
+        for name in ("time_s", "force_N", "displacement_m", "record_time_s", "measured_force_N",
+                     "measured_displacement_m"):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+
+    # ------------------------------------------------------------------------- derived numbers
+    @property
+    def tooth_period_s(self) -> float:
+        """``T = 60 / (N n)``, s."""
+        return 60.0 / (self.tool.teeth * self.cut.spindle_rpm)
+
+    @property
+    def internal_rate_hz(self) -> float:
+        """Internal integration rate, Hz."""
+        return self.steps_per_tooth / self.tooth_period_s
+
+    def _tooth_period_indices(self, start_fraction: float) -> np.ndarray:
+        if not 0.0 <= start_fraction < 1.0:
+            raise InputError(None, "start_fraction", "a number in [0, 1)", repr(start_fraction))
+        n = self.time_s.size
+        first = int(math.ceil(start_fraction * (n - 1) / self.steps_per_tooth)) * self.steps_per_tooth
+        idx = np.arange(first, n, self.steps_per_tooth)
+        if idx.size < 5:
+            raise InputError(None, "duration_s", "at least 4 tooth periods after start_fraction",
+                             f"{max(idx.size - 1, 0)}")
+        return idx
+
+    def chatter_growth(self, *, start_fraction: float = 0.5) -> float:
+        """Exponential growth rate of the non-periodic vibration, 1/s (> 0: chatter grows).
+
+        The displacement is sampled once per tooth period (exact on the internal grid); stable
+        forced vibration is periodic with the tooth period, so the difference ``d_k = q(t_k + T) -
+        q(t_k)`` holds only the free and chatter motion. The rate is ``ln(rms_2 / rms_1) / dt``
+        between the RMS of ``|d_k|`` over the two halves of the window that starts at
+        ``start_fraction`` of the record. With background noise the free motion never dies out
+        and the rate of a stable cut is near zero, not negative.
+
+        Parameters
+        ----------
+        start_fraction : float
+            Where the analysed window starts, fraction of the duration (skips the entry transient).
+
+        Returns
+        -------
+        float
+            Growth rate, 1/s.
+        """
+        idx = self._tooth_period_indices(start_fraction)
+        d = np.diff(self.displacement_m[:, idx], axis=1)
+        amp = np.linalg.norm(d, axis=0)
+        t = self.time_s[idx[1:]]
+        half = amp.size // 2
+        rms1 = float(np.sqrt(np.mean(amp[:half] ** 2)))
+        rms2 = float(np.sqrt(np.mean(amp[half:] ** 2)))
+        if rms1 == 0.0 or rms2 == 0.0:
+            return 0.0 if rms1 == rms2 else (math.inf if rms1 == 0.0 else -math.inf)
+        return math.log(rms2 / rms1) / float(np.mean(t[half:]) - np.mean(t[:half]))
+
+    def steady_state_mean(self, *, start_fraction: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+        """Mean force (N) and mean displacement (m), each shape (3,), over whole tooth periods.
+
+        The window runs from the first tooth-period boundary after ``start_fraction`` of the record
+        to the last boundary, so the means of periodic signals are exact.
+        """
+        idx = self._tooth_period_indices(start_fraction)
+        sl = slice(idx[0], idx[-1])  # whole periods: first sample in, last one out
+        return self.force_N[:, sl].mean(axis=1), self.displacement_m[:, sl].mean(axis=1)
+
+    def to_dict(self) -> dict:
+        """Scalar summary (no signals), JSON-friendly."""
+        return {
+            "spindle_rpm": float(self.cut.spindle_rpm),
+            "axial_depth_m": float(self.cut.axial_depth_m),
+            "duration_s": float(self.time_s[-1]),
+            "sample_rate_hz": float(self.sample_rate_hz),
+            "internal_rate_hz": float(self.internal_rate_hz),
+            "steps_per_tooth": int(self.steps_per_tooth),
+            "axial_slices": int(self.axial_slices),
+            "regeneration": bool(self.regeneration),
+            "n_samples": int(self.record_time_s.size),
+        }
+
+    # --------------------------------------------------------------------------------- record
+    def to_record(self, tool: Tool | None = None, cut: Cut | None = None, *, material: Material | None = None,
+                  name: str | None = None, joints_deg=None, robot_model: str | None = None) -> Record:
+        """The measured signals as a ``robomill-record/1`` :class:`oma.record.Record`.
+
+        Channels ``Fx, Fy, Fz`` (N) and ``x, y, z`` (file unit um, data in m); the record's time
+        column is :attr:`record_time_s`.
+
+        Parameters
+        ----------
+        tool, cut : optional
+            Default: the simulated ones. A given cut gets the simulated spindle speed and axial
+            depth.
+        material : Material, optional
+            Default: unnamed, with the simulated cutting coefficients.
+        name, joints_deg, robot_model : optional
+            Record metadata.
+        """
+        tool = self.tool if tool is None else tool
+        cut = self.cut if cut is None else replace(cut, spindle_rpm=self.cut.spindle_rpm,
+                                                   axial_depth_m=self.cut.axial_depth_m)
+        if material is None:
+            material = Material(cutting_coefficients=self.coefficients)
+        channels = (
+            Channel("Fx", "force", "X", "N"),
+            Channel("Fy", "force", "Y", "N"),
+            Channel("Fz", "force", "Z", "N"),
+            Channel("x", "displacement", "X", "um"),
+            Channel("y", "displacement", "Y", "um"),
+            Channel("z", "displacement", "Z", "um"),
+        )
+        data = np.vstack([self.measured_force_N, self.measured_displacement_m])
+        return Record(
+            sample_rate_hz=float(self.sample_rate_hz),
+            channels=channels,
+            data=data,
+            tool=tool,
+            cut=cut,
+            material=material,
+            sensors=self.sensors.to_sensors(),
+            name=name,
+            robot_model=robot_model,
+            joints_deg=joints_deg,
+            time_s=self.record_time_s,
+        )
+
+    def plot(self, ax=None):
+        """Measured force and displacement against time (matplotlib imported here only).
+
+        Returns
+        -------
+        fig, axes
+        """
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            fig, axes = plt.subplots(2, 1, sharex=True)
+        else:
+            axes = np.ravel(ax)
+            fig = axes[0].figure
+        for i, axis in enumerate("XYZ"):
+            axes[0].plot(self.record_time_s, self.measured_force_N[i], label=f"F{axis.lower()}")
+            axes[1].plot(self.record_time_s, self.measured_displacement_m[i] * 1e6, label=axis.lower())
+        axes[0].set_ylabel("force (N)")
+        axes[1].set_ylabel("displacement (um)")
+        axes[1].set_xlabel("time (s)")
+        for a in axes[:2]:
+            a.legend(loc="upper right")
+        return fig, axes
+
+
+# ----------------------------------------------------------------------------- discretisation
+def default_steps_per_tooth(model: ModalModel, tooth_period_s: float, *, sample_rate_hz: float,
+                            effects: Effects = Effects(), background: BackgroundForce | None = None) -> int:
+    """Internal steps per tooth period by the module's step rule.
+
+    ``max(50, ceil(20 f_hi T), ceil(4 fs T), ceil(4 B T))``, ``f_hi`` the highest natural frequency
+    over the record (after pose drift) or the force-sensor resonance, whichever is higher.
+    """
+    f_hi = float(np.max(model.natural_frequency_hz)) if model.n_modes else 0.0
+    if effects.pose_drift is not None:
+        f_hi *= max(1.0, 1.0 + effects.pose_drift.relative_change)
+    if effects.force_sensor is not None:
+        f_hi = max(f_hi, effects.force_sensor.frequency_hz)
+    candidates = [MIN_STEPS_PER_TOOTH, STEPS_PER_MODE_PERIOD * f_hi * tooth_period_s,
+                  OVERSAMPLING * sample_rate_hz * tooth_period_s]
+    if background is not None:
+        candidates.append(OVERSAMPLING * background.bandwidth_hz * tooth_period_s)
+    return int(math.ceil(max(candidates) - 1e-9))
+
+
+def default_axial_slices(tool: Tool, axial_depth_m: float) -> int:
+    """Axial slices: 1 for straight flutes (all slices would be equal), else ``max(12, ceil(lag /
+    2 deg))`` with ``lag = 2 a tan(helix) / D`` the helix lag over the depth."""
+    lag = 2.0 * axial_depth_m * math.tan(tool.helix_rad) / tool.diameter_m
+    if lag == 0.0:
+        return 1
+    return max(MIN_HELIX_SLICES, int(math.ceil(abs(lag) / MAX_SLICE_LAG_RAD)))
+
+
+# ----------------------------------------------------------------------------------- simulate
+def simulate(model: ModalModel, tool: Tool, cut: Cut, coefficients: CuttingCoefficients | Material, *,
+             duration_s: float, spindle_rpm: float | None = None, axial_depth_m: float | None = None,
+             sample_rate_hz: float = 1000.0, effects: Effects = Effects(),
+             background: BackgroundForce | None = None, sensors: SensorModel | None = None,
+             regeneration: bool = True, axial_slices: int | None = None, steps_per_tooth: int | None = None,
+             seed=None, progress: bool = False) -> SimulationResult:
+    """Simulate a milling cut in the time domain.
+
+    The tool starts fully engaged at ``t = 0`` with the structure at rest and an empty delay line
+    (the surface ahead is the nominal one).
+
+    Parameters
+    ----------
+    model : ModalModel
+        Tool-tip dynamics, machine frame.
+    tool : Tool
+    cut : Cut
+        Feed per tooth, radial depth, milling direction and the cutting frame ``f, n, a``.
+    coefficients : CuttingCoefficients or Material
+        Linear-plus-edge force model (a material must carry coefficients).
+    duration_s : float
+        Simulated time, s.
+    spindle_rpm, axial_depth_m : float, optional
+        Default: the cut's.
+    sample_rate_hz : float
+        Record rate of the measured signals, Hz.
+    effects : Effects
+        Effects beyond the simple model; all off by default.
+    background : BackgroundForce, optional
+        Broadband force on the structure (and in the measured force).
+    sensors : SensorModel, optional
+        Default: ideal sensors (no noise, no quantisation) with the anti-alias filter.
+    regeneration : bool
+        ``False``: forced vibration only, ``h = fz sin(phi)``.
+    axial_slices : int, optional
+        Default :func:`default_axial_slices`.
+    steps_per_tooth : int, optional
+        Default :func:`default_steps_per_tooth`.
+    seed : int or numpy.random.Generator or None
+        Seeds ``numpy.random.default_rng`` for the background force and the sensor noise.
+    progress : bool
+        Show a tqdm progress bar on standard error.
+
+    Returns
+    -------
+    SimulationResult
+
+    Raises
+    ------
+    InputError
+        A parameter out of range (message ``<input>: field: expected ..., found ...``).
+    """
+    if isinstance(coefficients, Material):
+        if coefficients.cutting_coefficients is None:
+            raise InputError(None, "material.cutting_coefficients", "cutting coefficients", "None")
+        coefficients = coefficients.cutting_coefficients
+    rpm = _positive(cut.spindle_rpm if spindle_rpm is None else spindle_rpm, "spindle_rpm")
+    depth = _positive(cut.axial_depth_m if axial_depth_m is None else axial_depth_m, "axial_depth_m",
+                      allow_zero=True)
+    duration = _positive(duration_s, "duration_s")
+    fs = _positive(sample_rate_hz, "sample_rate_hz")
+    fz = _positive(cut.feed_per_tooth_m, "cut.feed_per_tooth_m", allow_zero=True)
+    teeth = int(tool.teeth)
+    if teeth < 1:
+        raise InputError(None, "tool.teeth", "an integer >= 1", repr(tool.teeth))
+    diameter = _positive(tool.diameter_m, "tool.diameter_m")
+    sensors = SensorModel() if sensors is None else sensors
+    frame = np.asarray(cut.frame, dtype=float)
+    if not np.allclose(frame @ frame.T, np.eye(3), atol=1e-6):
+        raise InputError(None, "cut.normal_direction", "a unit vector perpendicular to the unit feed_direction",
+                         f"f = {cut.feed_direction.tolist()}, n = {cut.normal_direction.tolist()}")
+    cut = replace(cut, spindle_rpm=rpm, axial_depth_m=depth)
+
+    tooth_period = 60.0 / (teeth * rpm)
+    if steps_per_tooth is None:
+        spt = default_steps_per_tooth(model, tooth_period, sample_rate_hz=fs, effects=effects,
+                                      background=background)
+    else:
+        spt = int(steps_per_tooth)
+        if spt < 2 or spt != steps_per_tooth:
+            raise InputError(None, "steps_per_tooth", "an integer >= 2", repr(steps_per_tooth))
+    if spt / tooth_period < 2.0 * fs:
+        raise InputError(None, "steps_per_tooth", f"an internal rate >= twice the record rate ({2 * fs:g} Hz)",
+                         f"{spt / tooth_period:g} Hz")
+    n_slices = default_axial_slices(tool, depth) if axial_slices is None else int(axial_slices)
+    if n_slices < 1 or (axial_slices is not None and n_slices != axial_slices):
+        raise InputError(None, "axial_slices", "an integer >= 1", repr(axial_slices))
+
+    step = tooth_period / spt
+    n_steps = int(math.ceil(duration / step - 1e-9))
+    n_rec = int(math.floor(duration * fs + 1e-9))
+    if n_rec < 2:
+        raise InputError(None, "duration_s", f"at least two record samples (>= {2 / fs:g} s)", repr(duration_s))
+    rng = np.random.default_rng(seed)
+
+    # ---- structure: piecewise-constant modal parameters (one segment unless the pose drifts)
+    omega0 = model.omega_rad_s
+    mass = model.modal_mass_kg
+    n_periods = int(math.ceil(n_steps / spt))
+    if effects.pose_drift is not None and effects.pose_drift.relative_change != 0.0:
+        seg_len = spt * int(math.ceil(n_periods / MAX_DRIFT_SEGMENTS))
+        n_seg = int(math.ceil(n_steps / seg_len))
+        t_mid = (np.arange(n_seg) + 0.5) * seg_len * step
+        scale = 1.0 + effects.pose_drift.relative_change * np.minimum(t_mid, duration) / duration
+        omegas = scale[:, None] * omega0[None, :]
+    else:
+        seg_len = max(n_steps, 1)
+        omegas = omega0[None, :]
+    phi_mats, g0, g1 = _sim_kernel.foh_matrices(omegas, model.damping_ratio, mass, step)
+
+    # ---- cutting
+    phi_st, phi_ex = engagement_angles(tool, cut)
+    dz = depth / n_slices
+    z_mid = (np.arange(n_slices) + 0.5) * dz
+    lag = 2.0 * z_mid * math.tan(tool.helix_rad) / diameter
+    coef = np.array([coefficients.Ktc_N_m2, coefficients.Krc_N_m2, coefficients.Kac_N_m2,
+                     coefficients.Kte_N_m, coefficients.Kre_N_m, coefficients.Kae_N_m], dtype=float)
+    drho = effects.runout.chip_increments(teeth) if effects.runout is not None else np.zeros(teeth)
+    pd_coef = 0.0
+    if effects.process_damping is not None:
+        speed = np.pi * diameter * rpm / 60.0
+        pd_coef = effects.process_damping.coefficient_N_m / speed
+    nl_p, nl_href = 0.0, 1.0
+    if effects.nonlinear_cutting is not None:
+        nl_p = float(effects.nonlinear_cutting.exponent_p)
+        href = effects.nonlinear_cutting.reference_chip_m
+        nl_href = float(fz if href is None else href)
+        if nl_p != 0.0 and nl_href <= 0.0:
+            raise InputError(None, "effects.nonlinear_cutting.reference_chip_m", "a number > 0", repr(nl_href))
+
+    bg = np.zeros((n_steps + 1, 3))
+    if background is not None:
+        if background.bandwidth_hz >= 0.5 / step:
+            raise InputError(None, "background.bandwidth_hz", f"below the internal Nyquist frequency {0.5 / step:g} Hz",
+                             f"{background.bandwidth_hz:g}")
+        bg[:] = _sim_kernel.band_limited_noise(background.variance_N2, background.bandwidth_hz, BACKGROUND_ORDER,
+                                              n_steps + 1, step, rng).T
+
+    # ---- time stepping
+    force = np.zeros((n_steps + 1, 3))
+    disp = np.zeros((n_steps + 1, 3))
+    q = np.zeros(model.n_modes)
+    v = np.zeros(model.n_modes)
+    args = (teeth, spt, lag, dz, coef, fz, float(phi_st), float(phi_ex), np.ascontiguousarray(drho),
+            bool(regeneration), float(pd_coef), nl_p, nl_href, np.ascontiguousarray(frame),
+            np.ascontiguousarray(model.directions), phi_mats, g0, g1, int(seg_len),
+            np.ascontiguousarray(model.residual_compliance_m_N, dtype=float), bg, q, v, force, disp)
+    if progress:
+        from tqdm import tqdm
+
+        chunk = max(spt, n_steps // 200)
+        with tqdm(total=n_steps, unit="step", file=sys.stderr, desc="simulate") as bar:
+            k = 0
+            while k < n_steps:
+                k_end = min(k + chunk, n_steps)
+                _sim_kernel.run(k, k_end, *args)
+                bar.update(k_end - k)
+                k = k_end
+    else:
+        _sim_kernel.run(0, n_steps, *args)
+    force = force.T
+    disp = disp.T
+
+    # ---- sensors
+    t_rec = np.arange(n_rec) / fs
+    f_seen = force
+    if effects.force_sensor is not None:
+        f_seen = _sim_kernel.resonance_filter(effects.force_sensor.frequency_hz, effects.force_sensor.damping_ratio,
+                                              force, step)
+    cutoff = ANTI_ALIAS_FRACTION * fs if sensors.anti_alias else None
+    f_meas = _sim_kernel.resample(f_seen, step, t_rec, cutoff_hz=cutoff, order=ANTI_ALIAS_ORDER)
+    x_meas = _sim_kernel.resample(disp, step, t_rec - effects.channel_delay_s, cutoff_hz=cutoff,
+                                  order=ANTI_ALIAS_ORDER)
+    if sensors.force_noise_variance_N2 > 0.0:
+        f_meas = f_meas + math.sqrt(sensors.force_noise_variance_N2) * rng.standard_normal(f_meas.shape)
+    if sensors.displacement_noise_m > 0.0:
+        x_meas = x_meas + sensors.displacement_noise_m * rng.standard_normal(x_meas.shape)
+    f_meas = _sim_kernel.quantise(f_meas, sensors.force_resolution_N)
+    x_meas = _sim_kernel.quantise(x_meas, sensors.displacement_resolution_m)
+
+    return SimulationResult(
+        time_s=np.arange(n_steps + 1) * step,
+        force_N=force,
+        displacement_m=disp,
+        record_time_s=t_rec,
+        measured_force_N=f_meas,
+        measured_displacement_m=x_meas,
+        sample_rate_hz=fs,
+        steps_per_tooth=spt,
+        axial_slices=n_slices,
+        tool=tool,
+        cut=cut,
+        coefficients=coefficients,
+        effects=effects,
+        sensors=sensors,
+        background=background,
+        regeneration=bool(regeneration),
+    )
