@@ -1,0 +1,218 @@
+"""Zero-order approximation (stability/zoa.py) and the ZOA path of stability/lobes.py.
+
+Ground truth: the 1-DOF characteristic equation solved independently (scipy brentq on
+``Im[(1 - e^{-i w T}) G] = 0``), the closed-form minimum of the real part of a 1-DOF receptance,
+and the published milling example of Altintas (Manufacturing Automation, 2nd ed.).
+"""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from oma.cutting import Cut, CuttingCoefficients, Tool
+from oma.frf_table import FRFTable
+from oma.modal import ModalModel
+from stability import zoa
+from stability.lobes import lobe_diagram, predict_point
+
+# The issue's accuracy for the 1-DOF closed form.
+CLOSED_FORM_RTOL = 1e-9
+
+# Insperger-Stepan / Ding 1-DOF benchmark structure, here flexible along the normal direction.
+FN, ZETA, MASS = 922.0, 0.011, 0.03993
+STIFF = MASS * (2 * np.pi * FN) ** 2
+TEETH, KT, KR = 2, 6e8, 2e8
+
+
+def one_dof(direction=(0, 1, 0)):
+    return ModalModel([FN], [ZETA], [STIFF], [direction])
+
+
+def slot_cut():
+    return Cut(1e-4, 0.01, "down", feed_direction=[1, 0, 0], normal_direction=[0, 1, 0])
+
+
+TOOL = Tool(TEETH, 0.01)
+COEF = CuttingCoefficients(KT, KR)
+# slotting, mode along n: the mean directional factor is B_nn = (N / 2 pi) int_0^pi -Kr cos^2 = -N Kr / 4
+B_NN = -TEETH * KR / 4
+
+
+def g1(f):
+    r = np.asarray(f) / FN
+    return 1 / (STIFF * (1 - r**2 + 2j * ZETA * r))
+
+
+def closed_form_limit(rpm):
+    """Smallest depth over all lobes at this speed, from 1 = a (1 - e^{-iwT}) B_nn G(w)."""
+    period = 60.0 / (TEETH * rpm)
+
+    def im(f):
+        return np.imag((1 - np.exp(-2j * np.pi * f * period)) * g1(f))
+
+    f = np.linspace(FN, 3 * FN, 200_001)
+    v = im(f)
+    best = np.inf
+    for i in np.flatnonzero(np.sign(v[:-1]) != np.sign(v[1:])):
+        fr = brentq(im, f[i], f[i + 1], xtol=1e-13, rtol=1e-15)
+        val = B_NN * np.real((1 - np.exp(-2j * np.pi * fr * period)) * g1(fr))
+        if val > 0:
+            best = min(best, 1 / val)
+    return best
+
+
+def test_one_dof_curve_satisfies_the_characteristic_equation():
+    f = np.linspace(FN * 1.001, 2 * FN, 500)
+    c = zoa.limit_curves(one_dof(), TOOL, slot_cut(), COEF, f)
+    depth = c.depth_m[0]
+    # closed form: a = 1 / (2 B_nn Re G) where Re G < 0
+    assert np.allclose(depth, 1 / (2 * B_NN * g1(f).real), rtol=CLOSED_FORM_RTOL)
+    for k in (0, 3, 40):
+        rpm = c.rpm(k)[0]
+        period = 60 / (TEETH * rpm)
+        resid = 1 - depth * (1 - np.exp(-2j * np.pi * f * period)) * B_NN * g1(f)
+        assert np.max(np.abs(resid)) < CLOSED_FORM_RTOL
+    # the second eigenvalue of the rank-one problem is zero: no lobe
+    assert np.all(np.isinf(c.depth_m[1]))
+
+
+def test_one_dof_minimum_is_the_closed_form():
+    # min Re G = -1 / (4 k zeta (1 + zeta)) at (f/fn)^2 = 1 + 2 zeta, so a_min = 2 k zeta (1+zeta) / (-B_nn)
+    a_min = 2 * STIFF * ZETA * (1 + ZETA) / (-B_NN)
+    c = zoa.limit_curves(one_dof(), TOOL, slot_cut(), COEF, [FN * np.sqrt(1 + 2 * ZETA)])
+    assert c.depth_m[0, 0] == pytest.approx(a_min, rel=CLOSED_FORM_RTOL)
+    # every lobe bottoms out at a_min: the envelope never goes below it and touches it on a fine grid
+    env = zoa.envelope(one_dof(), TOOL, slot_cut(), COEF, np.linspace(5000, 20000, 3001))
+    assert env.depth_limit_m.min() >= a_min * (1 - CLOSED_FORM_RTOL)
+    assert env.depth_limit_m.min() <= a_min * (1 + 1e-4)  # grid spacing 5 rpm: the bottom is flat
+
+
+@pytest.mark.parametrize("rpm_range", [(4000.0, 20000.0), (300.0, 900.0)])
+def test_one_dof_envelope_is_exact_at_grid_and_intersections(rpm_range):
+    """At high speed a few lobes; at 300-900 rpm lobes up to k = 93 overlap (all must be found)."""
+    rpm = np.linspace(*rpm_range, 121)
+    env = zoa.envelope(one_dof(), TOOL, slot_cut(), COEF, rpm)
+    grid = ~env.is_intersection
+    assert np.array_equal(env.rpm[grid], rpm)
+    check = np.flatnonzero(grid)[::12]
+    ref = np.array([closed_form_limit(r) for r in env.rpm[check]])
+    assert np.allclose(env.depth_limit_m[check], ref, rtol=CLOSED_FORM_RTOL)
+    cusps = np.flatnonzero(env.is_intersection)
+    assert cusps.size > 3
+    for i in cusps[:3]:
+        r, d = env.rpm[i], env.depth_limit_m[i]
+        assert d == pytest.approx(closed_form_limit(r), rel=CLOSED_FORM_RTOL)
+        # a cusp is a local maximum of the true envelope: lower just left and right of it
+        assert closed_form_limit(r * (1 - 1e-6)) < d and closed_form_limit(r * (1 + 1e-6)) < d
+    if rpm_range[0] < 1000:
+        # 300 rpm: tooth passing 10 Hz, chatter ~930 Hz, so the lowest lobe there is k = 93
+        assert env.lobe.max() == 93
+
+
+def altintas_frf(f):
+    def modal(fns, zetas, residues):
+        w = 2 * np.pi * f
+        out = np.zeros(f.shape, dtype=complex)
+        for fn, z, r in zip(fns, zetas, residues):
+            wn = 2 * np.pi * fn
+            s = -z * wn + 1j * wn * np.sqrt(1 - z * z)
+            out += r / (1j * w - s) + np.conj(r) / (1j * w - np.conj(s))
+        return out
+
+    gx = modal([452.77, 1448.53], [0.123718, 0.01651], [9.202966e-5 - 1.862195e-4j, -4.181562e-5 - 3.043618e-4j])
+    gy = modal([516.17, 1407.64], [0.0243, 0.0324], [-2.3929e-6 - 1.721539e-4j, 4.055052e-5 - 3.618808e-4j])
+    return FRFTable.from_entries(f, {"XX": gx, "YY": gy})
+
+
+def test_altintas_published_example():
+    """Altintas, Manufacturing Automation (2nd ed.): half-immersion down milling, 2 teeth,
+    Kt = 1319.4 MPa, Kr = 788.8 MPa; published minimum stable depth 1.0147 mm, chatter ~1441 Hz.
+
+    The published depth has five significant digits, so the tolerance is half a unit of the last
+    one (0.05 um); the chatter frequency is quoted as "near 1441 Hz": within 1 Hz. Altintas's x, y
+    are the feed and normal directions of formats.md; a sign error in the directional factors
+    moves the minimum by far more than this (it changes which modes can chatter).
+    """
+    f = np.arange(100.0, 3000.0, 0.05)
+    table = altintas_frf(f)
+    tool = Tool(2, 0.03175)
+    cut = Cut(1e-4, 0.03175 / 2, "down", feed_direction=[1, 0, 0], normal_direction=[0, 1, 0])
+    coef = CuttingCoefficients(1319.4e6, 788.8e6)
+    c = zoa.limit_curves(table, tool, cut, coef, f)
+    i = np.argmin(c.depth_m[0])
+    assert abs(c.depth_m[0, i] - 1.0147e-3) <= 0.5e-7
+    assert abs(f[i] - 1441.0) <= 1.0
+    diagram = lobe_diagram(table, tool, cut, coef, rpm_range=(5000, 20000), method="zoa", n_rpm=1500)
+    # the envelope's lowest grid point sits on a lobe bottom within the grid's resolution
+    assert diagram.min_depth_limit_m == pytest.approx(1.0147e-3, rel=2e-3)
+
+
+def test_frf_table_gives_the_modal_model_lobes():
+    model = ModalModel([420.0, 610.0], [0.03, 0.02], [3e7, 5e7], [[1, 0.2, 0], [0.3, 1, 0]])
+    cut = Cut(1e-4, 0.004, "down", feed_direction=[1, 0, 0], normal_direction=[0, 1, 0])
+    f = np.linspace(0, 2000, 40_001)
+    table = FRFTable.from_entries(f, {k: model.receptance(f)[i, j] for k, i, j in
+                                      [("XX", 0, 0), ("XY", 0, 1), ("YX", 1, 0), ("YY", 1, 1)]})
+    rpm = np.linspace(6000, 15000, 60)
+    a = zoa.envelope(model, TOOL, cut, COEF, rpm)
+    b = zoa.envelope(table, TOOL, cut, COEF, rpm)
+    grid_a, grid_b = ~a.is_intersection, ~b.is_intersection
+    # linear interpolation of a 0.05 Hz table: relative error ~ (df / half-power bandwidth)^2,
+    # (0.05 / 24)^2 ~ 4e-6
+    assert np.allclose(a.depth_limit_m[grid_a], b.depth_limit_m[grid_b], rtol=2e-5)
+
+
+def test_cross_terms_of_an_oblique_mode_change_the_limit():
+    """Mode coupling: the same oblique mode seen only through XX and YY (no cross terms) gives a
+    different limit; the full oriented receptance must be used."""
+    u = np.array([1.0, 1.0, 0.0])
+    model = ModalModel([500.0], [0.02], [2e7], [u])
+    cut = Cut(1e-4, 0.005, "down", feed_direction=[1, 0, 0], normal_direction=[0, 1, 0])
+    f = np.linspace(1, 1500, 60_001)
+    g = model.receptance(f)
+    diag = FRFTable.from_entries(f, {"XX": g[0, 0], "YY": g[1, 1]})
+    full = FRFTable.from_entries(f, {"XX": g[0, 0], "XY": g[0, 1], "YX": g[1, 0], "YY": g[1, 1]})
+    a_full = zoa.limit_curves(full, TOOL, cut, COEF, f).depth_m.min()
+    a_diag = zoa.limit_curves(diag, TOOL, cut, COEF, f).depth_m.min()
+    a_model = zoa.limit_curves(model, TOOL, cut, COEF, f).depth_m.min()
+    assert a_full == pytest.approx(a_model, rel=1e-6)
+    assert abs(a_diag / a_full - 1) > 0.2
+
+
+def test_lobe_diagram_zoa_result_and_json():
+    d = lobe_diagram(one_dof(), TOOL, slot_cut(), COEF, rpm_range=(8000, 12000), n_rpm=50)
+    assert d.method == "zoa" and d.rpm.size == 50 + d.is_intersection.sum()
+    assert np.all(np.diff(d.rpm) > 0) and not d.rpm.flags.writeable
+    assert set(d.kind) == {"hopf"} and d.lobe_rpm.size > 0
+    out = json.loads(json.dumps(d.to_dict(), allow_nan=False))
+    assert out["method"] == "zoa" and len(out["rpm"]) == len(out["depth_limit_m"])
+
+
+def test_predict_point_zoa_on_an_frf_table():
+    f = np.linspace(0, 3000, 30_001)
+    model = one_dof()
+    table = FRFTable.from_entries(f, {"YY": model.receptance(f)[1, 1]})
+    limit = zoa.envelope(model, TOOL, slot_cut(), COEF, [10_000.0]).depth_limit_m[0]
+    below = predict_point(table, TOOL, slot_cut(), COEF, spindle_rpm=10_000, axial_depth_m=0.9 * limit)
+    above = predict_point(table, TOOL, slot_cut(), COEF, spindle_rpm=10_000, axial_depth_m=1.1 * limit)
+    assert below.stable and not above.stable
+    assert below.depth_limit_m == pytest.approx(limit, rel=1e-4)
+    d = json.loads(json.dumps(below.to_dict(), allow_nan=False))
+    for key in ("stable", "depth_limit_m", "surface_location_error_m", "peak_force_N", "peak_torque_N_m",
+                "power_W", "mrr_m3_s"):
+        assert key in d
+
+
+def test_bad_input_is_rejected():
+    with pytest.raises(ValueError, match="strictly increasing"):
+        zoa.envelope(one_dof(), TOOL, slot_cut(), COEF, [9000.0, 8000.0])
+    with pytest.raises(ValueError, match="method must be one of 'zoa', 'sdm'"):
+        lobe_diagram(one_dof(), TOOL, slot_cut(), COEF, rpm_range=(1000, 2000), method="fdm")
+    with pytest.raises(ValueError, match="rpm_range"):
+        lobe_diagram(one_dof(), TOOL, slot_cut(), COEF, rpm_range=(2000, 1000))
+    with pytest.raises(ValueError, match="process damping needs method 'sdm'"):
+        lobe_diagram(one_dof(), TOOL, slot_cut(), COEF, rpm_range=(1000, 2000), process_damping_N_m=1e4)
+    with pytest.raises(TypeError, match="ModalModel or an FRFTable"):
+        zoa.default_chatter_frequencies(object())
