@@ -70,6 +70,23 @@ class FRFTable:
             freq_hz, {e: g[AXES.index(e[0]), AXES.index(e[1])] for e in entries}
         )
 
+    @classmethod
+    def merge(cls, tables: "list[FRFTable]") -> "FRFTable":
+        """One table from several (e.g. an XX and a YY file), on the first table's frequencies.
+
+        Entries measured in more than one table are taken from the first; the others are linearly
+        interpolated onto the first grid (see :meth:`receptance`).
+        """
+        first = tables[0]
+        g = np.array(first.receptance_m_N)
+        m = np.array(first.measured)
+        for t in tables[1:]:
+            other = t.receptance(first.freq_hz)
+            new = t.measured & ~m
+            g[new] = other[new]
+            m |= new
+        return cls(first.freq_hz, g, m, meta={"merged": [t.meta for t in tables]})
+
     def entry(self, key: str) -> np.ndarray:
         """One entry by name, e.g. ``"XY"`` (output X, input Y)."""
         i, j = AXES.index(key[0].upper()), AXES.index(key[1].upper())

@@ -57,17 +57,95 @@ def _emit(args, payload: dict, human: Callable[[dict], str] | str) -> None:
 # Each handler returns an exit code. Library imports happen inside, so `robomill --help` is fast.
 
 
-def _load_structure(path: str, axis: str | None = None):
-    """A modal model (YAML) or a measured FRF (CSV, UFF58, .frf) from a path."""
+def _load_structure(paths: Sequence[str], axes: Sequence[str] | None = None):
+    """A modal model (one ``.yaml``) or measured FRFs (``.csv``, ``.uff``, ``.frf``; several files
+    are merged into one table, e.g. an XX and a YY ``.frf``, whose axes ``--axis`` gives in order)."""
     from oma.frf_io import read_frf
+    from oma.frf_table import FRFTable
     from oma.modal_io import read_modal_model
 
-    suffix = Path(path).suffix.lower()
-    if suffix in (".yaml", ".yml"):
-        return read_modal_model(path)
-    if suffix in (".csv", ".uff", ".unv", ".frf"):
-        return read_frf(path, axis=axis)
-    raise UsageError("--model", "a modal model (.yaml) or an FRF file (.csv, .uff, .frf)", repr(path))
+    suffixes = [Path(p).suffix.lower() for p in paths]
+    if any(s in (".yaml", ".yml") for s in suffixes):
+        if len(paths) != 1:
+            raise UsageError("--model", "one modal model (.yaml), or FRF files only", f"{len(paths)} files")
+        return read_modal_model(paths[0])
+    for path, suffix in zip(paths, suffixes):
+        if suffix not in (".csv", ".uff", ".unv", ".frf"):
+            raise UsageError("--model", "a modal model (.yaml) or FRF files (.csv, .uff, .frf)", repr(path))
+    frf_files = [p for p, s in zip(paths, suffixes) if s == ".frf"]
+    axes = list(axes or [])
+    if len(axes) != len(frf_files):
+        raise UsageError("--axis", f"one axis (X, Y or Z) per .frf file ({len(frf_files)})", f"{len(axes)} axes")
+    axis_of = dict(zip(frf_files, axes))
+    tables = [read_frf(p, axis=axis_of.get(p)) for p in paths]
+    return tables[0] if len(tables) == 1 else FRFTable.merge(tables)
+
+
+def _rpm_range(args, setup) -> tuple[float, float]:
+    if args.rpm is not None:
+        lo, hi = args.rpm
+    elif setup.limits.spindle_rpm is not None:
+        lo, hi = setup.limits.spindle_rpm
+    else:
+        raise UsageError("--rpm", "MIN MAX (the setup has no limits.spindle_rpm)", "nothing")
+    if not 0 < lo < hi:
+        raise UsageError("--rpm", "0 < MIN < MAX", f"{lo} {hi}")
+    return float(lo), float(hi)
+
+
+def _coefficients(setup, path):
+    if setup.material.cutting_coefficients is None:
+        raise InputError(path, "material.cutting_coefficients", "cutting coefficients", "none")
+    return setup.material.cutting_coefficients
+
+
+def _save_figure(fig, path: str) -> None:
+    """Save a figure atomically (format from the suffix)."""
+    import matplotlib.pyplot as plt
+
+    from oma.io import atomic_write
+
+    with atomic_write(path) as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight", format=Path(path).suffix.lstrip(".") or "png")
+    plt.close(fig)
+
+
+def _cmd_lobes(args) -> int:
+    from stability.lobes import lobe_diagram
+    from stability.setup_io import read_setup
+
+    setup = read_setup(args.setup)
+    structure = _load_structure(args.model, args.axis)
+    diagram = lobe_diagram(structure, setup.tool, setup.cut, _coefficients(setup, args.setup),
+                           rpm_range=_rpm_range(args, setup), method=args.method, n_rpm=args.n_rpm)
+    if args.output:
+        fig, _ = diagram.plot()
+        _save_figure(fig, args.output)
+    payload = diagram.to_dict()
+    _emit(args, payload, lambda p: (
+        f"{p['method']} lobes, {len(p['rpm'])} speeds; smallest limit depth "
+        f"{1e3 * diagram.min_depth_limit_m:.3f} mm" + (f"; figure: {args.output}" if args.output else "")))
+    return EXIT_OK
+
+
+def _cmd_predict(args) -> int:
+    from stability.lobes import predict_point
+    from stability.setup_io import read_setup
+
+    setup = read_setup(args.setup)
+    structure = _load_structure(args.model, args.axis)
+    for option, value in (("--rpm", args.rpm), ("--depth", args.depth)):
+        if not value > 0:
+            raise UsageError(option, "a positive number", repr(value))
+    point = predict_point(structure, setup.tool, setup.cut, _coefficients(setup, args.setup),
+                          spindle_rpm=args.rpm, axial_depth_m=args.depth, method=args.method)
+    payload = point.to_dict()
+    _emit(args, payload, lambda p: "\n".join([
+        f"{'stable' if p['stable'] else 'CHATTER'} at {args.rpm:.0f} rpm, depth {1e3 * args.depth:.3f} mm "
+        f"(limit {1e3 * point.depth_limit_m:.3f} mm, {args.method})",
+        f"surface location error {1e6 * point.surface_location_error_m:+.1f} um, peak force "
+        f"{point.peak_force_N:.0f} N, power {point.power_W:.0f} W, MRR {1e6 * point.mrr_m3_s:.2f} cm^3/s"]))
+    return EXIT_OK
 
 
 def _cmd_simulate(args) -> int:
@@ -78,8 +156,7 @@ def _cmd_simulate(args) -> int:
 
     setup = read_setup(args.setup)
     model = read_modal_model(args.model)
-    if setup.material.cutting_coefficients is None:
-        raise InputError(args.setup, "material.cutting_coefficients", "cutting coefficients to simulate with", "none")
+    coefficients = _coefficients(setup, args.setup)
     for option, value in (("--rpm", args.rpm), ("--depth", args.depth), ("--duration", args.duration),
                           ("--sample-rate", args.sample_rate)):
         if not value > 0:
@@ -95,7 +172,7 @@ def _cmd_simulate(args) -> int:
         displacement_resolution_m=args.displacement_resolution,
     )
     result = simulate(
-        model, setup.tool, cut, setup.material.cutting_coefficients,
+        model, setup.tool, cut, coefficients,
         duration_s=args.duration, sample_rate_hz=args.sample_rate, background=background,
         sensors=sensors, seed=args.seed, progress=not args.json,
     )
@@ -145,6 +222,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="displacement sensor resolution, m (default 1.5e-5, a laser tracker)")
     _add_json(p)
     p.set_defaults(handler=_cmd_simulate)
+
+    for name, help_text in (("lobes", "stability lobe diagram"), ("predict", "one operating point")):
+        p = sub.add_parser(name, help=help_text)
+        p.add_argument("setup")
+        p.add_argument("--model", required=True, nargs="+",
+                       help="modal model (.yaml), or measured FRF files (.csv, .uff, .frf)")
+        p.add_argument("--axis", nargs="+", default=None, choices=["X", "Y", "Z"],
+                       help="direction of each .frf file given to --model, in order")
+        p.add_argument("--method", choices=["zoa", "sdm"], default="zoa")
+        if name == "lobes":
+            p.add_argument("--rpm", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
+                           help="speed range (default: the setup's limits.spindle_rpm)")
+            p.add_argument("--n-rpm", type=int, default=None, help="number of speeds (default: method's own)")
+            p.add_argument("-o", "--output", default=None, help="figure file (.png, .pdf, .svg)")
+            p.set_defaults(handler=_cmd_lobes)
+        else:
+            p.add_argument("--rpm", type=float, required=True)
+            p.add_argument("--depth", type=float, required=True, help="axial depth of cut, m")
+            p.set_defaults(handler=_cmd_predict)
+        _add_json(p)
 
     p = sub.add_parser("demo", help="the whole job on the bundled example")
     p.add_argument("-o", "--output", default="out", help="output directory (default out/)")

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from planner.cli import main
@@ -49,3 +51,41 @@ def test_missing_file_is_exit_2_naming_the_file(capsys, tmp_path):
     assert str(missing) in err
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "rec").exists()
+
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "kr500_acetal"
+
+
+def test_lobes_json_has_matching_lists_and_writes_the_figure(capsys, tmp_path):
+    fig = tmp_path / "lobes.png"
+    code, out, err = _run(capsys, "lobes", str(EXAMPLE / "setup.yaml"), "--model",
+                          str(EXAMPLE / "models" / "planning_model.yaml"), "--rpm", "2000", "6000",
+                          "-o", str(fig), "--json")
+    assert code == 0, err
+    payload = json.loads(out)
+    assert payload["method"] == "zoa"
+    assert len(payload["rpm"]) == len(payload["depth_limit_m"]) > 10
+    assert min(payload["rpm"]) >= 2000 and max(payload["rpm"]) <= 6000
+    assert fig.stat().st_size > 1000
+
+
+def test_predict_agrees_with_lobes_and_reports_the_cli_keys(capsys):
+    args = [str(EXAMPLE / "setup.yaml"), "--model", str(EXAMPLE / "models" / "planning_model.yaml")]
+    code, out, _ = _run(capsys, "lobes", *args, "--rpm", "2600", "2800", "--json")
+    lobes = json.loads(out)
+    limit = float(np.interp(2700.0, lobes["rpm"], lobes["depth_limit_m"]))
+    for factor, stable in ((0.9, True), (1.1, False)):
+        code, out, err = _run(capsys, "predict", *args, "--rpm", "2700", "--depth", str(factor * limit), "--json")
+        assert code == 0, err
+        p = json.loads(out)
+        assert {"stable", "depth_limit_m", "surface_location_error_m", "peak_force_N", "mrr_m3_s"} <= set(p)
+        assert p["stable"] is stable
+        assert p["depth_limit_m"] == pytest.approx(limit, rel=1e-3)
+
+
+def test_frf_model_needs_one_axis_per_frf_file(capsys, tmp_path):
+    frf = tmp_path / "xx.frf"
+    frf.write_text("freq re im\n10 1e-6 0\n20 1e-6 -1e-6\n")
+    code, out, err = _run(capsys, "lobes", str(EXAMPLE / "setup.yaml"), "--model", str(frf), "--json")
+    assert code == 2
+    assert "--axis" in err and len(err.strip().splitlines()) == 1
