@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ModalModel", "hz_to_rad_s"]
+__all__ = ["ModalModel", "hz_to_rad_s", "in_series"]
 
 
 def hz_to_rad_s(freq_hz):
@@ -192,3 +192,19 @@ class ModalModel:
             residual_compliance_m_N=d,
             **kwargs,
         )
+
+
+def in_series(first: ModalModel, *others: ModalModel, **kwargs) -> ModalModel:
+    """Structures in series (e.g. robot arm and spindle/tool): their receptances add, so the modal
+    sums concatenate and the residual compliances add. Keyword arguments go to the constructor
+    (default ``joints_deg`` from the first model)."""
+    models = (first, *others)
+    kwargs.setdefault("joints_deg", first.joints_deg)
+    return ModalModel(
+        np.concatenate([m.natural_frequency_hz for m in models]),
+        np.concatenate([m.damping_ratio for m in models]),
+        np.concatenate([m.stiffness_N_m for m in models]),
+        np.vstack([m.directions for m in models]),
+        residual_compliance_m_N=sum(m.residual_compliance_m_N for m in models),
+        **kwargs,
+    )

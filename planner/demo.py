@@ -93,6 +93,44 @@ def _step_records(example: Example, report: Report) -> None:
     report.summary["records"] = summary
 
 
+def _step_lobes(example: Example, report: Report, model=None, label: str = "planning model (truth + tool mode)") -> None:
+    """Lobes by ZOA and SDM over the setup's speed range, and the paper's operating point."""
+    from stability.lobes import lobe_diagram, predict_point
+    from stability.plots import plot_lobes
+
+    setup = example.setup
+    model = example.planning_model if model is None else model
+    coef = setup.material.cutting_coefficients
+    rpm_range = setup.limits.spindle_rpm or (500.0, 24000.0)
+    zoa = lobe_diagram(model, setup.tool, setup.cut, coef, rpm_range=rpm_range, method="zoa")
+    sdm = lobe_diagram(model, setup.tool, setup.cut, coef, rpm_range=rpm_range, method="sdm", n_rpm=120)
+    fig, ax = plot_lobes(zoa, sdm)
+    paper = example.records["cut_short"].cut if "cut_short" in example.records else None
+    sec = report.section("Stability lobes")
+    sec.text(f"Model: {label}. Cut: {setup.tool.teeth} teeth, D = {1e3 * setup.tool.diameter_m:.1f} mm, "
+             f"ae = {1e3 * setup.cut.radial_depth_m:.1f} mm, {setup.cut.milling} milling. ZOA: Altintas &amp; "
+             "Budak (1995); SDM: Insperger &amp; Stepan (2004), step count chosen for 1 % accuracy.")
+    rows = [["ZOA", len(zoa.rpm), 1e3 * zoa.min_depth_limit_m, zoa.elapsed_s],
+            ["SDM", len(sdm.rpm), 1e3 * sdm.min_depth_limit_m, sdm.elapsed_s]]
+    sec.table(["method", "speeds", "smallest limit depth mm", "time s"], rows)
+    summary = {"zoa_min_depth_limit_m": zoa.min_depth_limit_m, "sdm_min_depth_limit_m": sdm.min_depth_limit_m,
+               "zoa_time_s": zoa.elapsed_s, "sdm_time_s": sdm.elapsed_s}
+    if paper is not None:
+        ax.plot([paper.spindle_rpm], [1e3 * paper.axial_depth_m], "r*", ms=12, label="the paper's cut")
+        ax.legend(loc="upper left", fontsize=8)
+        point = predict_point(model, setup.tool, paper, coef, spindle_rpm=paper.spindle_rpm,
+                              axial_depth_m=paper.axial_depth_m, method="sdm")
+        sec.text(f"The paper's cut ({paper.spindle_rpm:.0f} rpm, ap {1e3 * paper.axial_depth_m:.1f} mm): "
+                 f"{'stable' if point.stable else 'chatter'}, limit {1e3 * point.depth_limit_m:.2f} mm (SDM), "
+                 f"surface location error {1e6 * point.surface_location_error_m:+.1f} um, peak force "
+                 f"{point.peak_force_N:.0f} N, power {point.power_W:.0f} W.")
+        summary["paper_cut"] = {k: v for k, v in point.to_dict().items()
+                                if k in ("stable", "depth_limit_m", "surface_location_error_m", "peak_force_N",
+                                         "power_W", "mrr_m3_s")}
+    sec.figure(report.save_figure(fig, "lobes"), "Stability lobes: ZOA and SDM (flip and Hopf marked)")
+    report.summary["lobes"] = summary
+
+
 def run_demo(output: Path, *, example_dir: Path = EXAMPLE_DIR, progress: bool = True) -> dict:
     """Run every step on the example and write ``report.html`` and ``summary.json`` under ``output``.
 
@@ -101,7 +139,7 @@ def run_demo(output: Path, *, example_dir: Path = EXAMPLE_DIR, progress: bool = 
     t0 = time.perf_counter()
     example = load_example(example_dir)
     report = Report("robomill demo: KR500 milling acetal (simulated example cell)", output)
-    steps = [_step_records]
+    steps = [_step_records, _step_lobes]
     for step in steps:
         log.info("demo: %s", step.__name__)
         step(example, report)

@@ -279,7 +279,8 @@ def _newton_intersection(prob, b1, k1, f1, b2, k2, f2, *, iters=30):
             break
     r1, d1 = curve(b1, k1, f1)
     r2, d2 = curve(b2, k2, f2)
-    ok &= (np.abs(r1 - r2) <= 1e-9 * r1) & (np.abs(d1 - d2) <= 1e-9 * np.abs(d1))
+    with np.errstate(invalid="ignore"):  # a branch may leave its finite range (inf - inf): not ok
+        ok &= (np.abs(r1 - r2) <= 1e-9 * r1) & (np.abs(d1 - d2) <= 1e-9 * np.abs(d1))
     return r1, d1, f1, ok
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from oma.cutting import Cut, CuttingCoefficients, Material, Sensors, Tool
 from oma.frf_io import write_frf_csv
 from oma.frf_table import FRFTable
-from oma.modal import ModalModel
+from oma.modal import ModalModel, in_series
 from oma.modal_io import write_modal_model
 from oma.record import Record
 from oma.record_io import write_record
@@ -117,18 +117,6 @@ def robot_model_at(joints_deg) -> ModalModel:
                       source={"method": "simulated truth (pose model)"})
 
 
-def series(robot: ModalModel, tool: ModalModel, **kwargs) -> ModalModel:
-    """Robot and tool in series: the receptances add, so the modal sums concatenate."""
-    return ModalModel(
-        np.concatenate([robot.natural_frequency_hz, tool.natural_frequency_hz]),
-        np.concatenate([robot.damping_ratio, tool.damping_ratio]),
-        np.concatenate([robot.stiffness_N_m, tool.stiffness_N_m]),
-        np.vstack([robot.directions, tool.directions]),
-        residual_compliance_m_N=robot.residual_compliance_m_N + tool.residual_compliance_m_N,
-        **kwargs,
-    )
-
-
 def hammer_reference(model: ModalModel, rng: np.random.Generator) -> FRFTable:
     """A hammer-test FRF of the robot modes: the model's direct receptances, 2-60 Hz at 0.25 Hz,
     with 3 % complex measurement noise (a good impact test; the hammer test is a separate measurement
@@ -178,12 +166,12 @@ def write_models(out: Path) -> None:
     write_modal_model(ROBOT_AT_CUT, out / "truth" / "robot_at_cut.yaml")
     write_modal_model(TOOL_MODE, out / "models" / "tool_mode.yaml")
     write_modal_model(
-        series(ROBOT_AT_CUT, TOOL_MODE, joints_deg=PAPER_JOINTS_DEG,
+        in_series(ROBOT_AT_CUT, TOOL_MODE, joints_deg=PAPER_JOINTS_DEG,
                source={"method": "robot truth + tool mode (simulated example)"}),
         out / "models" / "planning_model.yaml",
     )
     for i, joints in enumerate(POSE_JOINTS_DEG):
-        write_modal_model(series(robot_model_at(joints), TOOL_MODE, joints_deg=joints,
+        write_modal_model(in_series(robot_model_at(joints), TOOL_MODE, joints_deg=joints,
                                  source={"method": "simulated truth (pose model) + tool mode"}),
                           out / "poses" / f"pose_{i + 1}.yaml")
 
