@@ -1,0 +1,1120 @@
+"""Check a planned toolpath point by point: chatter, surface location error, force, power, pose.
+
+For every point of a :class:`~planner.toolpath.Toolpath` (``robomill check``, cli.md):
+
+1. **the model**: the modal model at the point's robot pose, interpolated between the identified
+   poses (:class:`planner.poses.PoseModels`); a pose outside their span is a ``pose_out_of_range``
+   violation and is still evaluated, with the model at the nearest point of the span (held, not
+   extrapolated). With a single model every point uses it and the pose is not checked (a warning
+   says so).
+2. **the cut frame**: feed ``f`` along the path (:meth:`Toolpath.feed_directions`, projected onto the
+   plane normal to the tool axis ``a``), ``n = a x f`` (formats.md).
+3. **stability** at the point's spindle speed: the limit depth by the zero-order approximation
+   (Altintas & Budak, CIRP Annals 44(1), 1995) or by semi-discretization (Insperger & Stepan, 2004;
+   :mod:`stability.sdm`). The point's **stability margin** is ``depth_limit / planned depth`` (> 1:
+   stable); a ``chatter`` violation is a planned depth above ``limits.stability_margin`` times the
+   limit (the whole limit when no margin is given). For a chatter violation, the **nearest stable
+   spindle speed**: the speed closest to the planned one, inside ``limits.spindle_rpm`` (else within
+   half to twice the planned speed), at which the planned depth passes that test.
+4. **forced vibration** of the stable cut (Schmitz & Mann, IJMTM 46, 2006; :mod:`stability.forced`):
+   surface location error at the tool tip, largest resultant force in the cut plane, mean cutting
+   power; ``surface_error``, ``force`` and ``power`` violations against ``limits``. They are
+   evaluated at every point, also where the cut chatters (where they describe the forced part only).
+
+The spindle torque limit and the speed, depth and feed ranges of :class:`~stability.setup.Limits`
+are planning bounds, not violation kinds of cli.md; they are not checked here.
+
+How the work is shared (results are those of :func:`stability.lobes.predict_point` at each point)
+----------------------------------------------------------------------------------------------
+* Joint angles are rounded to ``pose_resolution_deg`` (0.01 deg) and feed/tool-axis directions to
+  ``direction_resolution_deg`` (0.01 deg, component-wise) before anything is computed; every point
+  is evaluated at its rounded pose and frame, so equal keys give equal results whatever the order
+  of the points. Directions along the machine axes are not changed by the rounding. Pass ``0`` for
+  exact values (one evaluation per distinct pose and direction).
+* Distinct modal models (after rounding) x cut frames x radial engagement x milling mode form a
+  *structure group*. Its two ZOA eigenvalue branches are computed once on the chatter-frequency grid
+  of :func:`stability.zoa.default_chatter_frequencies`; every spindle speed of the group is then
+  solved on that grid exactly as :func:`stability.zoa.envelope` solves one speed (candidate lobe
+  intervals, the same 1.25 preselection, a bracketed Illinois solve of the phase condition), in a
+  loop compiled by numba (numpy over 10^4 frequencies costs about 5 ms per group, the compiled loop
+  about 1.2 ms of CPU). The grid does not depend on the speed, so a path at many speeds on one pose
+  costs one grid and a cheap solve per speed.
+* The nearest stable speed at a chatter point is exact on the same grid: the unstable speeds at the
+  planned depth are the images, under every lobe's speed map ``n_k(f) = 60 f / (N (eps / 2 pi + k))``,
+  of the frequency runs where a branch's critical depth is below the allowed one (run ends solved
+  for); the connected unstable set around the planned speed ends at the candidates, each verified by
+  the limit solve there (and moved outwards by up to 1e-4 of itself when the sampled images missed a
+  lobe's turning point between two grid frequencies).
+* Forces: the rigid-tool force harmonics per unit depth are integrated in closed form over the
+  engagement window (``(N / 2 pi) int b(psi) exp(-i h N psi) dpsi`` with trigonometric ``b``), and the
+  helix is the exact axial filter ``int_0^a exp(-i h N kappa z) dz``; so the harmonics are exact
+  for every depth. (:func:`stability.forced.forced_response` takes them from 1024+ cell means with
+  an alias correction; the two agree to its stated 1e-4 of each harmonic, in practice far closer.)
+  The peak force uses the same angle set as :mod:`stability.forced` (4096 angles plus both sides
+  of every entry/exit angle) per distinct (engagement, feed, depth).
+* The surface location error needs the receptance at the harmonics of the tooth-passing frequency:
+  evaluated for all distinct (model, frame, force shape, speed) at once, with the harmonic count
+  of :func:`stability.forced.default_harmonics`.
+
+Caching is by these keys within one call; :attr:`ToolpathCheck.evaluations` counts what was
+computed. ``method='sdm'`` computes one semi-discretization limit per distinct (structure group,
+speed) through :func:`stability.lobes.lobe_diagram` (seconds each) and finds the nearest stable
+speed on a 200-speed SDM lobe diagram refined by bisection: use it on short paths.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+import sys
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from oma.cutting import Cut, CuttingCoefficients, Tool, engagement_angles
+from oma.modal import ModalModel
+from stability.oriented import average_directional_matrix, engaged_axial_integral, force_coefficients
+from stability.oriented import helix_lag_per_m, torque_coefficients
+from stability.setup import Limits
+
+from .toolpath import Toolpath
+
+__all__ = ["ToolpathCheck", "check_toolpath", "VIOLATION_KINDS", "METHODS"]
+
+#: Violation kinds (cli.md), in the order they are listed for one point.
+VIOLATION_KINDS = ("chatter", "surface_error", "force", "power", "pose_out_of_range")
+METHODS = ("zoa", "sdm")
+
+_TWO_PI = 2.0 * math.pi
+#: As ``stability.zoa._PRESELECT_FACTOR``: lobe candidates within this factor of the sampled minimum
+#: depth at a speed are solved exactly.
+_PRESELECT = 1.25
+#: Angles of the peak-force search, as in ``stability.forced`` (grid over a tooth pitch).
+_PEAK_GRID = 4096
+#: Structure groups per compiled-kernel call (granularity of the progress bar).
+_CHUNK = 64
+#: Without an rpm range in the limits, the nearest stable speed is searched in this factor range.
+_DEFAULT_RPM_FACTORS = (0.5, 2.0)
+#: SDM nearest-speed search: speeds of the lobe diagram, bisection steps of the boundary.
+_SDM_GRID, _SDM_BISECT = 200, 12
+
+
+# =================================================================================== the kernel
+# Plain Python functions compiled by numba on first use (see _kernel). Branch order, the candidate
+# rule and the Illinois iteration are those of stability.zoa, so the limits equal predict_point's.
+def _k_lam(f, fn, zeta, stiff, w, wres):
+    """Eigenvalues of ``G_or(f) B0`` (2 x 2), the larger real part first.
+
+    ``G_or B0 = sum_r W_r / (k_r (1 - rho^2 + 2 i zeta_r rho)) + W_res`` with ``W_r = v_r[:2] (B0^T
+    v_r)^T`` (``v_r`` the mode direction in the cut frame), which is ``oriented_receptance @ B0``.
+    """
+    a00, a01, a10, a11 = wres[0, 0], wres[0, 1], wres[1, 0], wres[1, 1]
+    b00 = b01 = b10 = b11 = 0.0
+    for r in range(fn.shape[0]):
+        rho = f / fn[r]
+        re = 1.0 - rho * rho
+        im = 2.0 * zeta[r] * rho
+        den = 1.0 / (stiff[r] * (re * re + im * im))
+        re, im = re * den, -im * den  # 1 / (k (1 - rho^2 + 2 i zeta rho))
+        a00 += w[r, 0, 0] * re
+        b00 += w[r, 0, 0] * im
+        a01 += w[r, 0, 1] * re
+        b01 += w[r, 0, 1] * im
+        a10 += w[r, 1, 0] * re
+        b10 += w[r, 1, 0] * im
+        a11 += w[r, 1, 1] * re
+        b11 += w[r, 1, 1] * im
+    m00, m01, m10, m11 = complex(a00, b00), complex(a01, b01), complex(a10, b10), complex(a11, b11)
+    half = (m00 + m11) / 2.0
+    det = m00 * m11 - m01 * m10
+    disc = cmath.sqrt(half * half - det)
+    if (half.conjugate() * disc).real < 0.0:
+        disc = -disc
+    l1 = half + disc
+    l2 = det / l1 if l1 != 0 else half - disc
+    if l2.real > l1.real:
+        return l2, l1
+    return l1, l2
+
+
+def _k_depth_phase(lam):
+    depth = 0.5 / lam.real if lam.real > 0.0 else np.inf
+    return depth, math.pi + 2.0 * math.atan2(lam.imag, lam.real)
+
+
+def _k_branch(f, b, fn, zeta, stiff, w, wres):
+    l1, l2 = _k_lam(f, fn, zeta, stiff, w, wres)
+    return l1 if b == 0 else l2
+
+
+def _k_solve(b, k, rpm, teeth, f_lo, f_hi, fn, zeta, stiff, w, wres):
+    """Chatter frequency of lobe ``k`` of branch ``b`` at ``rpm`` in ``[f_lo, f_hi]`` (Illinois, as
+    ``stability.zoa._solve_freq``); returns (depth, frequency, residual)."""
+    x = 60.0 / (teeth * rpm)
+    d, p = _k_depth_phase(_k_branch(f_lo, b, fn, zeta, stiff, w, wres))
+    a, fa = f_lo, p / _TWO_PI + k - x * f_lo
+    d, p = _k_depth_phase(_k_branch(f_hi, b, fn, zeta, stiff, w, wres))
+    c_hi, fb = f_hi, p / _TWO_PI + k - x * f_hi
+    side = 0
+    for _ in range(80):
+        denom = fb - fa
+        c = (a * fb - c_hi * fa) / denom if denom != 0.0 else 0.5 * (a + c_hi)
+        if not (c >= min(a, c_hi) and c <= max(a, c_hi)):
+            c = 0.5 * (a + c_hi)
+        d, p = _k_depth_phase(_k_branch(c, b, fn, zeta, stiff, w, wres))
+        fc = p / _TWO_PI + k - x * c
+        right = fc * fb > 0.0
+        left = (not right) and fc * fa > 0.0
+        done = (not right) and (not left)
+        if right and side == -1:
+            fa = fa / 2.0
+        if left and side == 1:
+            fb = fb / 2.0
+        if right or done:
+            c_hi, fb = c, fc
+        if left or done:
+            a, fa = c, fc
+        if right:
+            side = -1
+        elif left:
+            side = 1
+        if abs(c_hi - a) <= 4e-15 * abs(c_hi):
+            break
+    f = a if abs(fa) < abs(fb) else c_hi
+    d, p = _k_depth_phase(_k_branch(f, b, fn, zeta, stiff, w, wres))
+    return d, f, p / _TWO_PI + k - x * f
+
+
+def _k_limit(rpm, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres):
+    """ZOA limit depth and chatter frequency at one speed from the sampled branches (as
+    ``stability.zoa._lowest_lobe``). ``valid[b, i]``: interval ``i`` of branch ``b`` can hold a lobe
+    (finite depth at both ends, no eigenvalue-ordering swap); ``pha`` is the phase over 2 pi."""
+    nf = freq.shape[0]
+    xs = 60.0 / teeth
+    inv = xs / rpm
+    # the candidates: lobe k crosses the speed inside interval i (zoa's test, in speed), with the
+    # depth interpolated there; those within the preselection factor of the smallest are solved
+    cap = 256
+    cand = np.empty((cap, 4))
+    n_cand = 0
+    best = np.inf
+    for b in range(2):
+        h1 = freq[0] * inv - pha[b, 0]
+        for i in range(nf - 1):
+            h0 = h1
+            h1 = freq[i + 1] * inv - pha[b, i + 1]
+            if not valid[b, i]:
+                continue
+            # lobe k can reach the speed in the interval only if k lies between h0 and h1 (the
+            # 1e-9 lets the speed test below decide the cases rounding could tip)
+            ka = max(0, int(math.ceil(min(h0, h1) - 1e-9)))
+            kb = int(math.floor(max(h0, h1) + 1e-9))
+            for k in range(ka, kb + 1):
+                x0 = xs * freq[i] / (pha[b, i] + k)
+                x1 = xs * freq[i + 1] / (pha[b, i + 1] + k)
+                if not (min(x0, x1) <= rpm <= max(x0, x1)):
+                    continue
+                t = (rpm - x0) / (x1 - x0)
+                if not np.isfinite(t):
+                    t = 0.5
+                t = min(max(t, 0.0), 1.0)
+                d = dep[b, i] + t * (dep[b, i + 1] - dep[b, i])
+                if n_cand == cap:  # grow
+                    more = np.empty((2 * cap, 4))
+                    more[:cap] = cand
+                    cand, cap = more, 2 * cap
+                cand[n_cand, 0], cand[n_cand, 1], cand[n_cand, 2], cand[n_cand, 3] = b, k, i, d
+                n_cand += 1
+                best = min(best, d)
+    out_d, out_f = np.inf, np.nan
+    for j in range(n_cand):
+        if cand[j, 3] <= _PRESELECT * best:
+            b, k, i = int(cand[j, 0]), int(cand[j, 1]), int(cand[j, 2])
+            d, f, res = _k_solve(b, k, rpm, teeth, freq[i], freq[i + 1], fn, zeta, stiff, w, wres)
+            if d < np.inf and abs(res) < 1e-8 and d < out_d:
+                out_d, out_f = d, f
+    return out_d, out_f
+
+
+def _k_crossing(b, target, f_a, f_b, fn, zeta, stiff, w, wres):
+    """Frequency in ``[f_a, f_b]`` where ``Re lambda_b = target`` (bisection; the real part of each
+    branch, max or min of the two, is continuous)."""
+    ga = _k_branch(f_a, b, fn, zeta, stiff, w, wres).real - target
+    for _ in range(200):
+        mid = 0.5 * (f_a + f_b)
+        if mid <= f_a or mid >= f_b:
+            break
+        gm = _k_branch(mid, b, fn, zeta, stiff, w, wres).real - target
+        if (gm > 0.0) == (ga > 0.0):
+            f_a, ga = mid, gm
+        else:
+            f_b = mid
+    return 0.5 * (f_a + f_b)
+
+
+def _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres):
+    """Speed intervals in which some lobe lies below depth ``thr``: the images, under every lobe's
+    speed map ``n_k(f) = 60 f / (N (eps(f) / 2 pi + k))``, of the frequency runs where a branch's
+    critical depth is below ``thr`` (on the intervals the ZOA solve uses: finite ends, no phase
+    jump). Returns (starts, ends), arrays."""
+    nf = freq.shape[0]
+    xs = 60.0 / teeth
+    starts = np.empty(256)
+    ends = np.empty(256)
+    n_int = 0
+    run_f = np.empty(nf + 2)
+    run_p = np.empty(nf + 2)
+    target = 0.5 / thr
+    for b in range(2):
+        n_run = 0
+        for i in range(nf):  # interval i = [freq[i], freq[i+1]]; i == nf - 1 flushes the last run
+            piece = 0  # 0 none, 1 whole, 2 left part (below at i), 3 right part (below at i+1)
+            if i < nf - 1:
+                d0, d1 = dep[b, i], dep[b, i + 1]
+                if valid[b, i]:
+                    if d0 < thr and d1 < thr:
+                        piece = 1
+                    elif d0 < thr:
+                        piece = 2
+                    elif d1 < thr:
+                        piece = 3
+            if piece == 1 or piece == 2:
+                if n_run == 0:
+                    run_f[0], run_p[0] = freq[i], pha[b, i]
+                    n_run = 1
+            if piece == 1:
+                run_f[n_run], run_p[n_run] = freq[i + 1], pha[b, i + 1]
+                n_run += 1
+                continue
+            if piece == 2:
+                fc = _k_crossing(b, target, freq[i], freq[i + 1], fn, zeta, stiff, w, wres)
+                run_f[n_run] = fc
+                run_p[n_run] = _k_depth_phase(_k_branch(fc, b, fn, zeta, stiff, w, wres))[1] / _TWO_PI
+                n_run += 1
+            if n_run > 0:  # the run ends here: emit its image under every lobe
+                kmin, kmax = np.inf, -np.inf
+                for j in range(n_run):
+                    kmin = min(kmin, xs * run_f[j] / hi - run_p[j])
+                    kmax = max(kmax, xs * run_f[j] / lo - run_p[j])
+                for k in range(max(0, int(math.floor(kmin))), int(math.floor(kmax)) + 1):
+                    r_min, r_max = np.inf, -np.inf
+                    for j in range(n_run):
+                        r = xs * run_f[j] / (run_p[j] + k)
+                        r_min = min(r_min, r)
+                        r_max = max(r_max, r)
+                    if r_max >= lo and r_min <= hi:
+                        if n_int == starts.shape[0]:  # grow
+                            more_s, more_e = np.empty(2 * n_int), np.empty(2 * n_int)
+                            more_s[:n_int], more_e[:n_int] = starts, ends
+                            starts, ends = more_s, more_e
+                        starts[n_int], ends[n_int] = r_min, r_max
+                        n_int += 1
+                n_run = 0
+            if piece == 3:
+                fc = _k_crossing(b, target, freq[i], freq[i + 1], fn, zeta, stiff, w, wres)
+                run_f[0] = fc
+                run_p[0] = _k_depth_phase(_k_branch(fc, b, fn, zeta, stiff, w, wres))[1] / _TWO_PI
+                run_f[1], run_p[1] = freq[i + 1], pha[b, i + 1]
+                n_run = 2
+    return starts[:n_int], ends[:n_int]
+
+
+def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres):
+    """Speed nearest to ``rpm0`` in ``[lo, hi]`` whose ZOA limit is at least ``thr`` (NaN: none).
+
+    The candidates are the ends of the connected unstable speed set around ``rpm0``; each is moved
+    outwards by 1e-9 .. 1e-4 of itself until the exact limit there passes (the sampled images can
+    miss a lobe's turning point between two grid frequencies by ~1e-7); a side that never passes is
+    widened and searched again, and a verified side is returned only when the other side cannot be
+    nearer.
+    """
+    p = min(max(rpm0, lo), hi)
+    if p != rpm0 and _k_limit(p, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+        return p
+    starts, ends = _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)
+    left, right = p, p
+    for _ in range(200):
+        changed = True
+        while changed:
+            changed = False
+            for j in range(starts.shape[0]):
+                if starts[j] <= right and ends[j] >= left:
+                    if starts[j] < left:
+                        left, changed = starts[j], True
+                    if ends[j] > right:
+                        right, changed = ends[j], True
+        # verify each side; an unverified side is known to reach at least `reach`
+        found_r, found_l = np.nan, np.nan
+        reach_r, reach_l = right, left
+        if right < hi:
+            step = 1e-9
+            while step <= 1.01e-4:
+                c = min(right * (1.0 + step), hi)
+                if _k_limit(c, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+                    found_r = c
+                    break
+                reach_r = c
+                step *= 10.0
+        if left > lo:
+            step = 1e-9
+            while step <= 1.01e-4:
+                c = max(left * (1.0 - step), lo)
+                if _k_limit(c, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+                    found_l = c
+                    break
+                reach_l = c
+                step *= 10.0
+        dist_r = found_r - rpm0 if found_r == found_r else (np.inf if right >= hi else reach_r - rpm0)
+        dist_l = rpm0 - found_l if found_l == found_l else (np.inf if left <= lo else rpm0 - reach_l)
+        if found_r == found_r and dist_r <= dist_l:
+            return found_r
+        if found_l == found_l and dist_l <= dist_r:
+            return found_l
+        if dist_r == np.inf and dist_l == np.inf:
+            return np.nan
+        # widen the unverified side(s) that could still be nearer, and search again
+        if found_r != found_r and right < hi:
+            right = reach_r
+        if found_l != found_l and left > lo:
+            left = reach_l
+    return np.nan
+
+
+def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q_thr, q_lo, q_hi, q_near,
+            out_depth, out_freq, out_near):
+    """For every structure group: sample both branches on the log frequency grid of
+    ``stability.zoa.default_chatter_frequencies``, then answer its queries (limit at a speed and,
+    where flagged and unstable, the nearest stable speed)."""
+    freq = np.empty(n_freq)
+    dep = np.empty((2, n_freq))
+    pha = np.empty((2, n_freq))
+    valid = np.empty((2, n_freq - 1), dtype=np.bool_)
+    for g in range(fn.shape[0]):
+        fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
+        a = math.log(f_lo[g])
+        step = (math.log(f_hi[g]) - a) / (n_freq - 1)
+        for i in range(n_freq):
+            freq[i] = math.exp(i * step + a)
+        freq[0], freq[n_freq - 1] = f_lo[g], f_hi[g]
+        for i in range(n_freq):
+            l1, l2 = _k_lam(freq[i], fn_g, zeta_g, stiff_g, w_g, wres_g)
+            # the phase is used only where the depth is finite (atan2 is a fifth of the cost)
+            dep[0, i], pha[0, i] = np.inf, np.nan
+            dep[1, i], pha[1, i] = np.inf, np.nan
+            if l1.real > 0.0:
+                d, p = _k_depth_phase(l1)
+                dep[0, i], pha[0, i] = d, p / _TWO_PI
+            if l2.real > 0.0:
+                d, p = _k_depth_phase(l2)
+                dep[1, i], pha[1, i] = d, p / _TWO_PI
+        for b in range(2):
+            for i in range(n_freq - 1):
+                valid[b, i] = (dep[b, i] < np.inf and dep[b, i + 1] < np.inf
+                               and abs(pha[b, i + 1] - pha[b, i]) * _TWO_PI < 0.5 * math.pi)
+        for q in range(q_ptr[g], q_ptr[g + 1]):
+            d, fc = _k_limit(q_rpm[q], teeth, freq, dep, pha, valid, fn_g, zeta_g, stiff_g, w_g, wres_g)
+            out_depth[q], out_freq[q] = d, fc
+            out_near[q] = np.nan
+            if q_near[q] and d < q_thr[q]:
+                out_near[q] = _k_nearest(q_rpm[q], q_thr[q], q_lo[q], q_hi[q], teeth, freq, dep, pha, valid, fn_g,
+                                         zeta_g, stiff_g, w_g, wres_g)
+
+
+_KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_limit", "_k_crossing",
+                 "_k_unstable_intervals", "_k_nearest", "_k_scan")
+_PY_KERNELS = {name: globals()[name] for name in _KERNEL_NAMES}
+_COMPILED: list = []
+
+
+def _kernel():
+    """:func:`_k_scan` compiled by numba on first use (cached on disk), so that importing this
+    module does not import numba. Each helper is compiled and bound to its module name, so that the
+    compiled callers resolve the compiled helpers."""
+    if not _COMPILED:
+        import numba
+
+        g = globals()
+        for name in _KERNEL_NAMES:
+            g[name] = numba.njit(cache=True)(_PY_KERNELS[name])
+        _COMPILED.append(g["_k_scan"])
+    return _COMPILED[0]
+
+
+# ================================================================================ result type
+def _ro(a, dtype=float) -> np.ndarray:
+    a = np.array(a, dtype=dtype)
+    a.setflags(write=False)
+    return a
+
+
+def _json_float(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True, eq=False)
+class ToolpathCheck:
+    """Result of :func:`check_toolpath`: per-point predictions and the violations.
+
+    Attributes
+    ----------
+    method : str
+        ``'zoa'`` or ``'sdm'``.
+    positions_m : ndarray, shape (n_points, 3)
+        Tool-tip positions, machine frame, m.
+    spindle_rpm, axial_depth_m : ndarray, shape (n_points,)
+        The planned speed (rpm) and depth (m).
+    depth_limit_m : ndarray, shape (n_points,)
+        Stability limit depth at the planned speed, m (``inf``: no lobe reaches the speed).
+    stability_margin : ndarray, shape (n_points,)
+        ``depth_limit_m / axial_depth_m``: above 1 stable, below 1 chatter.
+    chatter_frequency_hz : ndarray, shape (n_points,)
+        Frequency of the limiting lobe, Hz (NaN where none).
+    surface_location_error_m : ndarray, shape (n_points,)
+        Forced-vibration surface location error at the tool tip, m (positive: material left on).
+    peak_force_N : ndarray, shape (n_points,)
+        Largest resultant force in the cut plane over a revolution, N.
+    power_W : ndarray, shape (n_points,)
+        Mean cutting power, W.
+    in_span : ndarray of bool, shape (n_points,)
+        The pose lies in the span of the identified poses (always True with one model).
+    nearest_stable_rpm : ndarray, shape (n_points,)
+        At chatter violations: the nearest spindle speed at which the planned depth passes the
+        chatter test (NaN if none in the range); NaN elsewhere.
+    violations : tuple of dict
+        ``{index, kind, value, limit}`` (cli.md) in point order, kinds in :data:`VIOLATION_KINDS`
+        order. ``chatter``: planned depth and allowed depth (margin x limit), m, plus
+        ``depth_limit_m`` and ``nearest_stable_rpm``; ``surface_error``: ``|SLE|`` and the allowed
+        value, m; ``force``: N; ``power``: W; ``pose_out_of_range``: distance to the identified span
+        and the tolerance exceeded (along the span or across it), degrees, plus ``beyond_range``.
+    limits : Limits
+        The limits checked against.
+    allowed_fraction : float
+        Fraction of the limit depth that may be planned (``limits.stability_margin`` or 1).
+    evaluations : dict
+        How much was computed (caching): ``points``, ``models`` (distinct modal models after
+        rounding the poses), ``frames``, ``structure_groups`` (frequency grids of the stability
+        computation), ``limits`` (speed solves), ``nearest_stable`` (searches), ``force_shapes``,
+        ``forced_groups``.
+    notes : tuple of str
+        What the user should know about how the result was obtained.
+    """
+
+    method: str
+    positions_m: np.ndarray
+    spindle_rpm: np.ndarray
+    axial_depth_m: np.ndarray
+    depth_limit_m: np.ndarray
+    stability_margin: np.ndarray
+    chatter_frequency_hz: np.ndarray
+    surface_location_error_m: np.ndarray
+    peak_force_N: np.ndarray
+    power_W: np.ndarray
+    in_span: np.ndarray
+    nearest_stable_rpm: np.ndarray
+    violations: tuple
+    limits: Limits = Limits()
+    allowed_fraction: float = 1.0
+    evaluations: dict = field(default_factory=dict)
+    notes: tuple = ()
+
+    @property
+    def n_points(self) -> int:
+        return int(self.positions_m.shape[0])
+
+    @property
+    def ok(self) -> bool:
+        """No violation at any point."""
+        return not self.violations
+
+    def counts(self) -> dict:
+        """Number of violations of each kind."""
+        out = {k: 0 for k in VIOLATION_KINDS}
+        for v in self.violations:
+            out[v["kind"]] += 1
+        return out
+
+    def flagged(self, kind: str) -> np.ndarray:
+        """Boolean mask, shape (n_points,), of the points with a violation of ``kind``."""
+        if kind not in VIOLATION_KINDS:
+            raise ValueError(f"kind must be one of {', '.join(map(repr, VIOLATION_KINDS))}, found {kind!r}")
+        mask = np.zeros(self.n_points, dtype=bool)
+        mask[[v["index"] for v in self.violations if v["kind"] == kind]] = True
+        return mask
+
+    def to_dict(self, *, per_point: bool = False) -> dict:
+        """JSON-ready mapping: ``points`` (count) and ``violations`` (cli.md), with ``method``,
+        ``ok``, ``counts``, ``min_stability_margin``, ``allowed_fraction``, ``evaluations``, ``notes``;
+        with ``per_point`` also every per-point array (``None`` for inf/NaN)."""
+        finite = self.stability_margin[np.isfinite(self.stability_margin)]
+        out = {
+            "points": self.n_points,
+            "violations": [{k: (_json_float(v) if isinstance(v, float) else v) for k, v in item.items()}
+                           for item in self.violations],
+            "method": self.method,
+            "ok": self.ok,
+            "counts": self.counts(),
+            "min_stability_margin": _json_float(finite.min()) if finite.size else None,
+            "allowed_fraction": self.allowed_fraction,
+            "evaluations": dict(self.evaluations),
+            "notes": list(self.notes),
+        }
+        if per_point:
+            for name in ("depth_limit_m", "stability_margin", "chatter_frequency_hz", "surface_location_error_m",
+                         "peak_force_N", "power_W", "nearest_stable_rpm", "spindle_rpm", "axial_depth_m"):
+                out[name] = [_json_float(x) for x in getattr(self, name)]
+            out["in_span"] = [bool(x) for x in self.in_span]
+        return out
+
+    def plot(self, ax=None, **kwargs):
+        """The path in the x-y plane coloured by stability margin, violations marked (see
+        :func:`planner.check_plots.plot_toolpath_check`)."""
+        from .check_plots import plot_toolpath_check
+
+        return plot_toolpath_check(self, ax=ax, **kwargs)
+
+
+# ================================================================================= the check
+def _groups(*columns):
+    """Distinct rows of the stacked columns (exact equality): the index of each group's first row
+    (groups in lexicographic order) and the group of every row. A lexicographic sort and a
+    comparison of neighbours, several times faster than ``np.unique(axis=0)`` on float rows."""
+    key = np.column_stack([np.asarray(c, dtype=float) for c in columns])
+    order = np.lexsort(key.T[::-1])
+    ks = key[order]
+    new = np.empty(key.shape[0], dtype=bool)
+    new[:1] = True
+    np.any(ks[1:] != ks[:-1], axis=1, out=new[1:])
+    inverse = np.empty(key.shape[0], dtype=int)
+    inverse[order] = np.cumsum(new) - 1
+    return order[new], inverse
+
+
+def _quantise(x, resolution):
+    return np.round(x / resolution) * resolution if resolution > 0 else np.asarray(x, dtype=float)
+
+
+@dataclass(frozen=True)
+class _Models:
+    """Distinct modal models (stacked parameters) and each point's model."""
+
+    fn: np.ndarray  # (n_models, n_modes)
+    zeta: np.ndarray
+    stiff: np.ndarray
+    dirs: np.ndarray  # (n_models, n_modes, 3)
+    res: np.ndarray  # (n_models, 3, 3)
+    index: np.ndarray  # (n_points,)
+    in_span: np.ndarray
+    beyond: np.ndarray
+    distance_deg: np.ndarray
+    span_tol_deg: float
+    hull_tol_deg: float
+
+    def model(self, i: int) -> ModalModel:
+        return ModalModel(self.fn[i], self.zeta[i], self.stiff[i], self.dirs[i], residual_compliance_m_N=self.res[i])
+
+
+def _pose_models(toolpath: Toolpath, models: Sequence[ModalModel], resolution: float, notes: list) -> _Models:
+    n = toolpath.n_points
+    if len(models) == 1:
+        m = models[0]
+        warnings.warn("one modal model given: every point uses it and the robot pose is not checked "
+                      "(pose_out_of_range cannot be flagged)", stacklevel=3)
+        notes.append("one modal model: used at every point; poses not checked")
+        return _Models(m.natural_frequency_hz[None], m.damping_ratio[None], m.stiffness_N_m[None],
+                       m.directions[None], m.residual_compliance_m_N[None], np.zeros(n, dtype=int),
+                       np.ones(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros(n), np.inf, np.inf)
+    from .poses import PoseModels
+
+    poses = PoseModels.fit(models)
+    joints = np.asarray(toolpath.joints_deg, dtype=float)
+    exact = poses.evaluate(joints)  # the span test at the exact poses
+    if resolution > 0:
+        rounded = _quantise(joints, resolution)
+        first, inverse = _groups(*rounded.T)
+        ev = poses.evaluate(rounded[first])
+    else:
+        ev, inverse = exact, np.arange(n)
+    m = ev.natural_frequency_hz.shape[1]
+    params = np.hstack([ev.natural_frequency_hz, ev.damping_ratio, ev.stiffness_N_m,
+                        ev.directions.reshape(-1, 3 * m), ev.residual_compliance_m_N.reshape(-1, 9)])
+    first, model_of = _groups(*params.T)
+    out = ~exact.in_span
+    if out.any():
+        notes.append(f"{int(out.sum())} point(s) outside the span of the identified poses: flagged "
+                     "pose_out_of_range and evaluated with the model at the nearest point of the span")
+    return _Models(ev.natural_frequency_hz[first], ev.damping_ratio[first], ev.stiffness_N_m[first],
+                   ev.directions[first], ev.residual_compliance_m_N[first], model_of.reshape(-1)[inverse],
+                   exact.in_span.copy(), exact.beyond_range.copy(), exact.distance_deg.copy(),
+                   poses.span_tol_deg, poses.hull_tol_deg)
+
+
+def _frames(toolpath: Toolpath, resolution_rad: float):
+    """Rounded unit feed directions and tool axes, (n, 3) each, and the rows ``f, n, a``."""
+    a = np.broadcast_to(np.asarray(toolpath.tool_axis, dtype=float), toolpath.positions_m.shape)
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    f = np.asarray(toolpath.feed_directions(), dtype=float)
+    f = f - np.sum(f * a, axis=1, keepdims=True) * a  # feed in the plane of the cut
+    length = np.linalg.norm(f, axis=1)
+    bad = np.flatnonzero(~(length > 1e-9))
+    if bad.size:
+        raise ValueError(f"point {bad[0]}: no feed direction across the tool axis (the path runs along the "
+                         "tool axis, a plunge, or two points coincide); side-milling checks need one")
+    f = f / length[:, None]
+    if resolution_rad > 0:
+        a = _quantise(a, resolution_rad)
+        a = a / np.linalg.norm(a, axis=1, keepdims=True)
+        f = _quantise(f, resolution_rad)
+        f = f - np.sum(f * a, axis=1, keepdims=True) * a
+        f = f / np.linalg.norm(f, axis=1, keepdims=True)
+    return f, a
+
+
+def _limits_fraction(limits: Limits) -> float:
+    frac = 1.0 if limits.stability_margin is None else float(limits.stability_margin)
+    if not (math.isfinite(frac) and frac > 0):
+        raise ValueError(f"limits.stability_margin must be a positive fraction, found {limits.stability_margin!r}")
+    return frac
+
+
+def _rpm_range(limits: Limits, rpm: np.ndarray):
+    if limits.spindle_rpm is not None:
+        lo, hi = (float(v) for v in limits.spindle_rpm)
+        return np.full(rpm.shape, lo), np.full(rpm.shape, hi)
+    return rpm * _DEFAULT_RPM_FACTORS[0], rpm * _DEFAULT_RPM_FACTORS[1]
+
+
+def _mode_weights(models: _Models, frames: np.ndarray, b0: np.ndarray, model_id, frame_id, b0_id):
+    """Per structure group: ``W_r = v_r[:2] (B0^T v_r)^T`` and ``W_res = (R Res R^T)[:2] B0``."""
+    rot = frames[frame_id]  # (G, 3, 3)
+    v = np.einsum("gij,gmj->gmi", rot, models.dirs[model_id])  # mode directions in the cut frame
+    bt = b0[b0_id]  # (G, 3, 2)
+    w = np.einsum("gmi,gjl,gmj->gmil", v[:, :, :2], bt, v)
+    res = np.einsum("gip,gpq,gjq->gij", rot, models.res[model_id], rot)
+    wres = np.einsum("gij,gjl->gil", res[:, :2, :], bt)
+    return np.ascontiguousarray(w), np.ascontiguousarray(wres)
+
+
+def _stability_zoa(tool, models, frames, b0, sg_model, sg_frame, sg_b0, q_group, q_rpm, q_thr, q_lo, q_hi,
+                   q_near, n_freq, progress, counts):
+    """ZOA limits (and nearest stable speeds) of every query, grouped by structure group."""
+    order = np.argsort(q_group, kind="stable")
+    n_groups = sg_model.size
+    ptr = np.searchsorted(q_group[order], np.arange(n_groups + 1))
+    w, wres = _mode_weights(models, frames, b0, sg_model, sg_frame, sg_b0)
+    fn = np.ascontiguousarray(models.fn[sg_model])
+    f_lo, f_hi = fn.min(axis=1) / 3.0, fn.max(axis=1) * 3.0
+    args = [np.ascontiguousarray(a[order]) for a in (q_rpm, q_thr, q_lo, q_hi)]
+    near = np.ascontiguousarray(q_near[order])
+    depth, freq, nearest = (np.empty(order.size) for _ in range(3))
+    scan = _kernel()
+    from tqdm import tqdm
+
+    with tqdm(total=n_groups, desc="check: stability", unit="group", file=sys.stderr, disable=not progress) as bar:
+        for g0 in range(0, n_groups, _CHUNK):
+            g1 = min(n_groups, g0 + _CHUNK)
+            q0, q1 = ptr[g0], ptr[g1]
+            sel = slice(g0, g1)
+            # modes that do not act in the plane of any of these cuts (W_r = 0: e.g. along the tool
+            # axis) add nothing to G_or B0 and are left out of the loop (they still set the grid)
+            act = np.flatnonzero(np.any(w[sel] != 0, axis=(0, 2, 3)))
+            pick = lambda a: np.ascontiguousarray(a[sg_model[sel]][:, act])  # noqa: E731
+            scan(np.ascontiguousarray(fn[sel][:, act]), pick(models.zeta), pick(models.stiff),
+                 np.ascontiguousarray(w[sel][:, act]), wres[sel], f_lo[sel], f_hi[sel],
+                 float(tool.teeth), int(n_freq), (ptr[g0:g1 + 1] - q0).astype(np.int64),
+                 *(a[q0:q1] for a in args), near[q0:q1], depth[q0:q1], freq[q0:q1], nearest[q0:q1])
+            counts["structure_groups"] += g1 - g0
+            bar.update(g1 - g0)
+    out = [np.empty(order.size) for _ in range(3)]
+    for dst, src in zip(out, (depth, freq, nearest)):
+        dst[order] = src
+    counts["limits"] += int(order.size)
+    counts["nearest_stable"] += int(np.count_nonzero(q_near & (out[0] < q_thr)))
+    return out
+
+
+def _sdm_limit(model, tool, cut, coefficients, rpm):
+    from stability.lobes import lobe_diagram
+
+    d = lobe_diagram(model, tool, cut, coefficients, rpm_range=(rpm, 2.0 * rpm), rpm=[rpm], method="sdm")
+    return float(d.depth_limit_m[0]), float(d.chatter_frequency_hz[0])
+
+
+def _sdm_nearest(model, tool, cut, coefficients, rpm0, thr, lo, hi):
+    """Nearest stable speed by SDM: the nearest stable speed of a 200-speed lobe diagram over
+    ``[lo, hi]``, its boundary towards ``rpm0`` refined by bisection (a stable window narrower
+    than the diagram's spacing can be missed)."""
+    from stability.lobes import lobe_diagram
+
+    target = min(max(rpm0, lo), hi)
+    if target != rpm0 and _sdm_limit(model, tool, cut, coefficients, target)[0] >= thr:
+        return float(target)
+    diagram = lobe_diagram(model, tool, cut, coefficients, rpm_range=(lo, hi), n_rpm=_SDM_GRID, method="sdm")
+    rpm, ok = np.asarray(diagram.rpm), np.asarray(diagram.depth_limit_m) >= thr
+    if not ok.any():
+        return np.nan
+    j = int(np.flatnonzero(ok)[np.argmin(np.abs(rpm[ok] - target))])
+    good = rpm[j]
+    nb = j - 1 if good > target else j + 1  # the grid neighbour towards the planned speed: unstable
+    bad = rpm[nb] if 0 <= nb < rpm.size and (rpm[nb] - target) * (good - target) > 0 else target
+    for _ in range(_SDM_BISECT):
+        mid = 0.5 * (good + bad)
+        if _sdm_limit(model, tool, cut, coefficients, mid)[0] >= thr:
+            good = mid
+        else:
+            bad = mid
+    return float(good)
+
+
+def _stability_sdm(tool, coefficients, models, frames, sg_model, sg_frame, sg_cut, q_group, q_rpm, q_thr, q_lo,
+                   q_hi, q_near, progress, counts):
+    from tqdm import tqdm
+
+    n = q_group.size
+    depth, freq, nearest = np.empty(n), np.empty(n), np.full(n, np.nan)
+    for q in tqdm(range(n), desc="check: SDM", file=sys.stderr, disable=not progress):
+        g = q_group[q]
+        model = models.model(sg_model[g])
+        rot = frames[sg_frame[g]]
+        cut = Cut(sg_cut[g][0], sg_cut[g][1], sg_cut[g][2], rot[0], rot[1])
+        depth[q], freq[q] = _sdm_limit(model, tool, cut, coefficients, q_rpm[q])
+        if q_near[q] and depth[q] < q_thr[q]:
+            nearest[q] = _sdm_nearest(model, tool, cut, coefficients, q_rpm[q], q_thr[q], q_lo[q], q_hi[q])
+            counts["nearest_stable"] += 1
+    counts["structure_groups"] += int(np.unique(q_group).size)
+    counts["limits"] += n
+    return depth, freq, nearest
+
+
+def _exp_integrals(st: float, ex: float, nu: np.ndarray) -> np.ndarray:
+    """``int_st^ex exp(i nu psi) dpsi`` for integer ``nu`` (any shape)."""
+    nu = np.asarray(nu, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        val = (np.exp(1j * nu * ex) - np.exp(1j * nu * st)) / (1j * nu)
+    return np.where(nu == 0, ex - st, val)
+
+
+# Basis (1, sin, cos, sin^2, cos^2, sin cos) as sums of exp(i m psi), m = -2..2 (columns).
+_BASIS_EXP = np.array([
+    [0, 0, 1, 0, 0],
+    [0, 0.5j, 0, -0.5j, 0],
+    [0, 0.5, 0, 0.5, 0],
+    [-0.25, 0, 0.5, 0, -0.25],
+    [0.25, 0, 0.5, 0, 0.25],
+    [0.25j, 0, 0, 0, -0.25j],
+], dtype=complex)
+
+
+def _force_shapes(tool: Tool, coefficients: CuttingCoefficients, cut: Cut, depths, n_harm: int):
+    """Rigid-tool force of one engagement (radial depth, milling, feed) at many axial depths.
+
+    Returns
+    -------
+    unit_harmonics : ndarray, shape (3, n_harm + 1), complex
+        Exact Fourier coefficients of the straight-flute force per unit depth in the cut frame
+        (f, n, a) over a tooth period, ``t = 0`` with tooth 0 at ``phi = 0``:
+        ``(N / 2 pi) int_st^ex b(psi) exp(-i h N psi) dpsi`` (closed form), N/m. Times
+        :func:`_helix_filter` they are the coefficients at any depth.
+    mean_torque : ndarray, shape (n_depths,)
+        Mean spindle torque, N m.
+    peak : ndarray, shape (n_depths,)
+        Largest resultant force in the (f, n) plane over a tooth period, N.
+    """
+    depths = np.asarray(depths, dtype=float)
+    st, ex = engagement_angles(tool, cut)
+    h = np.arange(n_harm + 1)
+    nu = np.arange(-2, 3)[None, :] - tool.teeth * h[:, None]  # (H+1, 5)
+    basis = (_exp_integrals(st, ex, nu) @ _BASIS_EXP.T) * tool.teeth / _TWO_PI  # (H+1, 6)
+    fc = force_coefficients(coefficients, cut.feed_per_tooth_m)
+    tc = torque_coefficients(coefficients, cut.feed_per_tooth_m, tool.diameter_m / 2.0)
+    straight = np.abs(helix_lag_per_m(tool) * depths) < _STRAIGHT_LAG_RAD
+    return ((basis @ fc.T).T, float((basis[0] @ tc).real) * depths,
+            _peak_forces(tool, cut, fc, depths, straight))
+
+
+def _helix_filter(tool: Tool, depths, n_harm: int) -> np.ndarray:
+    """``int_0^a exp(-i h N kappa z) dz`` for h = 0..n_harm at each depth ``a``, (n_depths, n_harm + 1), m:
+    the axial integral of a force whose immersion lags by ``kappa z`` at height ``z``."""
+    depths = np.asarray(depths, dtype=float)
+    kappa = helix_lag_per_m(tool)
+    out = np.empty((depths.size, n_harm + 1), dtype=complex)
+    out[:] = depths[:, None]
+    helix = np.abs(kappa * depths) >= _STRAIGHT_LAG_RAD
+    if helix.any():
+        hh = np.arange(1, n_harm + 1)[None, :] * tool.teeth
+        out[helix, 1:] = (1.0 - np.exp(-1j * hh * kappa * depths[helix, None])) / (1j * hh * kappa)
+    return out
+
+
+#: As ``stability.oriented._STRAIGHT_LAG_RAD``: a helix lag below this over the depth is straight.
+_STRAIGHT_LAG_RAD = 1e-9
+
+
+def _primitives(psi):
+    """Primitives of the basis (1, sin, cos, sin^2, cos^2, sin cos), shape psi.shape + (6,)."""
+    s2 = np.sin(2.0 * psi)
+    return np.stack([psi, -np.cos(psi), np.sin(psi), psi / 2 - s2 / 4, psi / 2 + s2 / 4, -np.cos(2.0 * psi) / 4],
+                    axis=-1)
+
+
+def _engaged_primitive(u, st: float, ex: float):
+    """``P(u) = int_0^u b(psi) g(psi) dpsi`` on the unwrapped angle, ``g`` the indicator of the
+    window ``[st, ex]`` repeated every 2 pi (as ``stability.oriented``), shape u.shape + (6,)."""
+    k = np.floor(u / _TWO_PI)
+    v = u - _TWO_PI * k
+    f_st = _primitives(np.array(st))
+    total = _primitives(np.array(ex)) - f_st
+    return k[..., None] * total + _primitives(np.clip(v, st, ex)) - f_st
+
+
+def _peak_forces(tool: Tool, cut: Cut, fc: np.ndarray, depths: np.ndarray, straight: np.ndarray) -> np.ndarray:
+    """Peak resultant force in the (f, n) plane at each depth, N, on the angle set of
+    ``stability.forced`` (4096 angles over a tooth pitch plus both sides of every angle where a
+    tooth enters or leaves the cut at the tip or at the top of the depth). The force at tip angle
+    ``phi`` is ``sum_j (P(phi_j) - P(phi_j - kappa a)) / kappa`` with straight flutes ``a`` times the
+    engaged sum (:func:`stability.oriented.engaged_axial_integral`, vectorised over depth here)."""
+    pitch = _TWO_PI / tool.teeth
+    st, ex = engagement_angles(tool, cut)
+    kappa = helix_lag_per_m(tool)
+    grid = pitch * np.arange(_PEAK_GRID) / _PEAK_GRID
+    tooth = pitch * np.arange(tool.teeth)
+    eps = 1e-9 * pitch
+    out = np.empty(depths.size)
+
+    def resultant(force):
+        return np.max(np.hypot(force[..., 0], force[..., 1]), axis=-1)
+
+    if straight.any():  # a times the force per unit depth: the straight-flute angle set, once
+        crit = np.mod(np.array([st, ex, st, ex])[:, None] - tooth, pitch).ravel()
+        phi = np.concatenate([grid, crit - eps, crit, crit + eps])
+        unit = engaged_axial_integral(tool, cut, phi, 1.0) @ fc.T  # = engaged_sum for zero lag
+        out[straight] = resultant(depths[straight, None, None] * unit[None, :, :])
+    idx = np.flatnonzero(~straight)
+    if idx.size:
+        ang = grid[:, None] + tooth[None, :]  # (grid, teeth)
+        p_tip = _engaged_primitive(ang, st, ex)
+        idx = idx[np.argsort(depths[idx], kind="stable")]
+        chunk = max(1, 4_000_000 // (grid.size * tool.teeth * 6))
+        for j0 in range(0, idx.size, chunk):
+            sel = idx[j0:j0 + chunk]
+            lag = kappa * depths[sel]
+            # only angles at which some tooth cuts somewhere on the depth (elsewhere the force is 0)
+            cuts = np.any(np.mod(ang - st, _TWO_PI) <= ex - st + lag.max(), axis=1)
+            top = _engaged_primitive(ang[None, cuts, :] - lag[:, None, None], st, ex)
+            e = np.sum(p_tip[None, cuts] - top, axis=2) / kappa  # (n, angles, 6)
+            out[sel] = resultant(e @ fc.T) if cuts.any() else 0.0
+        # both sides of the entry and exit angles at the tip and at the top of the depth
+        lag = kappa * depths[idx]
+        ends = np.stack([np.full(idx.size, st), np.full(idx.size, ex), st + lag, ex + lag], axis=1)
+        crit = np.mod(ends[:, :, None] - tooth[None, None, :], pitch).reshape(idx.size, -1)
+        phi = np.concatenate([crit - eps, crit, crit + eps], axis=1)[:, :, None] + tooth  # (n, 12 N, teeth)
+        e = np.sum(_engaged_primitive(phi, st, ex) - _engaged_primitive(phi - lag[:, None, None], st, ex),
+                   axis=2) / kappa
+        out[idx] = np.maximum(out[idx], resultant(e @ fc.T))
+    return out
+
+
+def _surface_errors(tool, models, frames, unit_h, fg_model, fg_frame, fg_eng, fg_depth, fg_rpm, fg_harm, fg_sign):
+    """Surface location error at the tool tip of every forced group (vectorised, chunked):
+    ``sign n . (G(0) F_0 + 2 Re sum_h G(h f_T) F_h exp(i h N phi_fin))`` (stability.forced), with
+    ``n . u_r (u_r . F) = v_r[1] (v_r . c)`` for the mode directions ``v_r`` in the cut frame."""
+    teeth = tool.teeth
+    out = np.empty(fg_model.size)
+    n_modes = models.fn.shape[1]
+    h_max = int(fg_harm.max())
+    chunk = max(1, 2_000_000 // (h_max * n_modes + 1))
+    h = np.arange(1, h_max + 1)
+    for j0 in range(0, fg_model.size, chunk):
+        s = slice(j0, min(fg_model.size, j0 + chunk))
+        mid, rot = fg_model[s], frames[fg_frame[s]]
+        c = unit_h[fg_eng[s]] * _helix_filter(tool, fg_depth[s], h_max)[:, None, :]  # (G, 3, H+1), cut frame
+        v = np.einsum("gij,gmj->gmi", rot, models.dirs[mid])  # (G, m, 3) cut frame
+        res_n = np.einsum("gp,gpq,gkq->gk", rot[:, 1], models.res[mid], rot)  # n . Res R^T  (G, 3)
+        proj = np.einsum("gmi,gih->gmh", v, c)  # v_r . c_h   (G, m, H+1)
+        static = np.sum(v[:, :, 1] * proj[:, :, 0].real / models.stiff[mid], axis=1) + np.einsum(
+            "gk,gk->g", res_n, c[:, :, 0].real)
+        f_h = (teeth * fg_rpm[s] / 60.0)[:, None] * h[None, :]  # (G, H)
+        rho = f_h[:, None, :] / models.fn[mid][:, :, None]
+        modal = 1.0 / (models.stiff[mid][:, :, None] * (1.0 - rho**2 + 2j * models.zeta[mid][:, :, None] * rho))
+        x_h = np.sum(v[:, :, 1, None] * proj[:, :, 1:] * modal, axis=1) + np.einsum("gk,gkh->gh", res_n, c[:, :, 1:])
+        phase = np.where(fg_sign[s][:, None] > 0, (-1.0) ** (h[None, :] * teeth), 1.0)  # exp(i h N phi_fin)
+        keep = h[None, :] <= fg_harm[s][:, None]
+        out[s] = fg_sign[s] * (static + 2.0 * np.sum(np.where(keep, (x_h * phase).real, 0.0), axis=1))
+    return out
+
+
+def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: Literal["zoa", "sdm"] = "zoa",
+                   limits: Limits | None = None, progress: bool = False, pose_resolution_deg: float = 0.01,
+                   direction_resolution_deg: float = 0.01, n_freq: int = 10_000) -> ToolpathCheck:
+    """Check every point of a toolpath for chatter, surface error, force, power and pose range.
+
+    Parameters
+    ----------
+    toolpath : Toolpath
+        The planned path (positions, poses, speeds, engagements), SI units.
+    models : sequence of ModalModel
+        Modal models at identified poses (each with ``joints_deg``), interpolated along the path
+        (:class:`planner.poses.PoseModels`); or a single model used at every point.
+    method : {'zoa', 'sdm'}
+        Stability limit by the zero-order approximation or by semi-discretization (slow).
+    limits : Limits, optional
+        Default ``toolpath.limits``. Used: ``stability_margin`` (allowed fraction of the limit
+        depth), ``spindle_rpm`` (range of the nearest-stable-speed search), ``max_force_N``,
+        ``spindle_power_W``, ``surface_location_error_m`` (on ``|SLE|``).
+    progress : bool
+        Show a progress bar (tqdm, on standard error).
+    pose_resolution_deg : float
+        Joint angles are rounded to this before the model is evaluated (0: exact), degrees.
+    direction_resolution_deg : float
+        Components of the feed direction and tool axis are rounded to this many radians' worth
+        (0: exact), degrees.
+    n_freq : int
+        Chatter-frequency grid of the ZOA (as :func:`stability.zoa.default_chatter_frequencies`).
+
+    Returns
+    -------
+    ToolpathCheck
+
+    Raises
+    ------
+    ValueError
+        Unknown method, no models, no cutting coefficients, a point whose feed runs along the tool
+        axis, a bad resolution.
+    oma.errors.ModelError
+        Several models, one without a pose.
+
+    Warns
+    -----
+    UserWarning
+        A single model: the pose cannot be checked.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, found {method!r}")
+    models = list(models)
+    if not models:
+        raise ValueError("models: expected at least one modal model, found none")
+    for i, m in enumerate(models):
+        if not isinstance(m, ModalModel):
+            raise TypeError(f"models[{i}] is a {type(m).__name__}, not a ModalModel")
+    coefficients = toolpath.material.cutting_coefficients
+    if coefficients is None:
+        raise ValueError("toolpath.material has no cutting coefficients: the forces cannot be predicted")
+    for name, value in (("pose_resolution_deg", pose_resolution_deg),
+                        ("direction_resolution_deg", direction_resolution_deg)):
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a number >= 0, found {value!r}")
+    if int(n_freq) < 2:
+        raise ValueError(f"n_freq must be at least 2, found {n_freq!r}")
+    limits = toolpath.limits if limits is None else limits
+    fraction = _limits_fraction(limits)
+    tool = toolpath.tool
+    notes: list[str] = []
+    counts = {"points": toolpath.n_points, "models": 0, "frames": 0, "structure_groups": 0, "limits": 0,
+              "nearest_stable": 0, "force_shapes": 0, "forced_groups": 0}
+
+    pm = _pose_models(toolpath, models, float(pose_resolution_deg), notes)
+    f, a = _frames(toolpath, math.radians(direction_resolution_deg))
+    frame_first, frame_id = _groups(*f.T, *a.T)
+    fr = f[frame_first]
+    ar = a[frame_first]
+    frames = np.stack([fr, np.cross(ar, fr), ar], axis=1)  # rows f, n = a x f, a
+    counts["models"], counts["frames"] = int(pm.fn.shape[0]), int(frame_first.size)
+
+    rpm = np.asarray(toolpath.spindle_rpm, dtype=float)
+    depth = np.asarray(toolpath.axial_depth_m, dtype=float)
+    ae = np.asarray(toolpath.radial_depth_m, dtype=float)
+    fz = np.asarray(toolpath.feed_per_tooth_m, dtype=float)
+    down = np.asarray(toolpath.milling) == "down"
+
+    # ---- stability: structure groups (model, frame, engagement) and their queries (speed, depth)
+    eng_first, eng_id = _groups(ae, down)
+    b0 = np.stack([average_directional_matrix(tool, Cut(fz[i], ae[i], "down" if down[i] else "up", [1, 0, 0],
+                                                        [0, 1, 0]), coefficients) for i in eng_first])
+    sg_first, sg_id = _groups(pm.index, frame_id, eng_id)
+    lo, hi = _rpm_range(limits, rpm)
+    thr = depth / fraction
+    q_first, q_id = _groups(sg_id, rpm, thr, lo, hi)
+    q_near = np.ones(q_first.size, dtype=bool)
+    args = (sg_id[q_first], rpm[q_first], thr[q_first], lo[q_first], hi[q_first], q_near)
+    if method == "zoa":
+        q_depth, q_freq, q_nearest = _stability_zoa(tool, pm, frames, b0, pm.index[sg_first], frame_id[sg_first],
+                                                    eng_id[sg_first], *args, int(n_freq), progress, counts)
+    else:
+        sg_cut = [(fz[i], ae[i], "down" if down[i] else "up") for i in sg_first]
+        q_depth, q_freq, q_nearest = _stability_sdm(tool, coefficients, pm, frames, pm.index[sg_first],
+                                                    frame_id[sg_first], sg_cut, *args, progress, counts)
+    depth_limit, chatter_freq, nearest = q_depth[q_id], q_freq[q_id], q_nearest[q_id]
+    chatter = depth_limit < thr
+    nearest = np.where(chatter, nearest, np.nan)
+
+    # ---- forced vibration: force shapes (engagement, feed, depth) and forced groups
+    fmax = pm.fn.max(axis=1)  # harmonic count of stability.forced.default_harmonics
+    harm = np.minimum(2000, np.maximum(32, np.ceil(4.0 * fmax[pm.index] / (tool.teeth * rpm / 60.0)))).astype(int)
+    feng_first, feng_id = _groups(ae, down, fz)
+    shape_first, shape_id = _groups(feng_id, depth)
+    n_shapes = shape_first.size
+    h_max = int(harm.max())
+    unit_h = np.empty((feng_first.size, 3, h_max + 1), dtype=complex)
+    shape_torque, shape_peak = np.empty(n_shapes), np.empty(n_shapes)
+    for e, i in enumerate(feng_first):
+        mine = np.flatnonzero(feng_id[shape_first] == e)
+        cut = Cut(fz[i], ae[i], "down" if down[i] else "up", [1, 0, 0], [0, 1, 0])
+        unit_h[e], shape_torque[mine], shape_peak[mine] = _force_shapes(tool, coefficients, cut,
+                                                                        depth[shape_first[mine]], h_max)
+    counts["force_shapes"] = int(n_shapes)
+    fg_first, fg_id = _groups(pm.index, frame_id, shape_id, rpm)
+    counts["forced_groups"] = int(fg_first.size)
+    sle = _surface_errors(tool, pm, frames, unit_h, pm.index[fg_first], frame_id[fg_first], feng_id[fg_first],
+                          depth[fg_first], rpm[fg_first], harm[fg_first],
+                          np.where(down[fg_first], 1.0, -1.0))[fg_id]
+    peak = shape_peak[shape_id]
+    power = shape_torque[shape_id] * _TWO_PI * rpm / 60.0
+
+    # ---- violations
+    with np.errstate(divide="ignore", invalid="ignore"):
+        margin = depth_limit / depth
+    found = {k: np.zeros(toolpath.n_points, dtype=bool) for k in VIOLATION_KINDS}
+    found["chatter"] = chatter
+    if limits.surface_location_error_m is not None:
+        found["surface_error"] = np.abs(sle) > limits.surface_location_error_m
+    if limits.max_force_N is not None:
+        found["force"] = peak > limits.max_force_N
+    if limits.spindle_power_W is not None:
+        found["power"] = power > limits.spindle_power_W
+    found["pose_out_of_range"] = ~pm.in_span
+    violations = []
+    for i in np.flatnonzero(np.any(np.stack(list(found.values())), axis=0)):
+        i = int(i)
+        if found["chatter"][i]:
+            violations.append({"index": i, "kind": "chatter", "value": float(depth[i]),
+                               "limit": float(fraction * depth_limit[i]), "depth_limit_m": float(depth_limit[i]),
+                               "nearest_stable_rpm": float(nearest[i])})
+        if found["surface_error"][i]:
+            violations.append({"index": i, "kind": "surface_error", "value": float(abs(sle[i])),
+                               "limit": float(limits.surface_location_error_m)})
+        if found["force"][i]:
+            violations.append({"index": i, "kind": "force", "value": float(peak[i]),
+                               "limit": float(limits.max_force_N)})
+        if found["power"][i]:
+            violations.append({"index": i, "kind": "power", "value": float(power[i]),
+                               "limit": float(limits.spindle_power_W)})
+        if found["pose_out_of_range"][i]:
+            violations.append({"index": i, "kind": "pose_out_of_range", "value": float(pm.distance_deg[i]),
+                               "limit": float(pm.hull_tol_deg if pm.beyond[i] else pm.span_tol_deg),
+                               "beyond_range": bool(pm.beyond[i])})
+    if pose_resolution_deg > 0 and len(models) > 1:
+        notes.append(f"models evaluated at the poses rounded to {pose_resolution_deg:g} deg")
+    if direction_resolution_deg > 0:
+        notes.append(f"cut frames evaluated with directions rounded to {direction_resolution_deg:g} deg")
+    if limits.spindle_torque_N_m is not None:
+        notes.append("the spindle torque limit is not checked (not a violation kind of cli.md)")
+    return ToolpathCheck(
+        method=method, positions_m=_ro(toolpath.positions_m), spindle_rpm=_ro(rpm), axial_depth_m=_ro(depth),
+        depth_limit_m=_ro(depth_limit), stability_margin=_ro(margin), chatter_frequency_hz=_ro(chatter_freq),
+        surface_location_error_m=_ro(sle), peak_force_N=_ro(peak), power_W=_ro(power), in_span=_ro(pm.in_span, bool),
+        nearest_stable_rpm=_ro(nearest), violations=tuple(violations), limits=limits, allowed_fraction=fraction,
+        evaluations=counts, notes=tuple(notes),
+    )
