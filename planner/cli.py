@@ -148,6 +148,62 @@ def _cmd_predict(args) -> int:
     return EXIT_OK
 
 
+def _cmd_identify(args) -> int:
+    from oma.identify import identify
+    from oma.modal_io import write_modal_model
+    from oma.record_io import read_record
+
+    records = [read_record(path) for path in args.records]
+    result = identify(records, method=args.method)
+    if args.output:
+        write_modal_model(result.model, args.output)
+    if args.plot:
+        drawn = result.plot_frf()
+        fig = drawn[0] if isinstance(drawn, tuple) else drawn
+        _save_figure(fig, args.plot)
+    payload = result.to_dict()
+    sufficient = np.asarray(result.excitation_sufficient, dtype=bool)
+
+    def human(p):
+        m = result.model
+        lines = [f"{m.n_modes} modes ({'trusted' if result.trusted else 'NOT trusted'}):"]
+        lines += [f"  {f:7.2f} Hz  zeta {100 * z:5.2f} %  k {k:.3g} N/m  direction {np.round(u, 3).tolist()}"
+                  for f, z, k, u in zip(m.natural_frequency_hz, m.damping_ratio, m.stiffness_N_m, m.directions)]
+        lines += [f"  warning: {w}" for w in result.warnings]
+        if args.output:
+            lines.append(f"model written to {args.output}")
+        return "\n".join(lines)
+
+    _emit(args, payload, human)
+    return EXIT_NEGATIVE if (args.strict and not sufficient.all()) else EXIT_OK
+
+
+def _cmd_check(args) -> int:
+    from oma.modal_io import read_modal_model
+    from planner.check import check_toolpath
+    from planner.toolpath_io import read_toolpath
+
+    toolpath = read_toolpath(args.toolpath)
+    models = [read_modal_model(path) for path in args.models]
+    result = check_toolpath(toolpath, models, method=args.method, progress=not args.json)
+    if args.output:
+        fig, _ = result.plot()
+        _save_figure(fig, args.output)
+    payload = result.to_dict()
+
+    def human(p):
+        counts = result.counts()
+        lines = [f"{p['points']} points, {len(p['violations'])} violations"
+                 + (": " + ", ".join(f"{k} {v}" for k, v in counts.items() if v) if p["violations"] else "")]
+        lines += [f"  note: {n}" for n in result.notes]
+        if args.output:
+            lines.append(f"figure: {args.output}")
+        return "\n".join(lines)
+
+    _emit(args, payload, human)
+    return EXIT_OK if result.ok else EXIT_NEGATIVE
+
+
 def _cmd_simulate(args) -> int:
     from stability.setup_io import read_setup
     from oma.modal_io import read_modal_model
@@ -204,6 +260,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="robomill", description="Robotic milling: identify, predict, plan, check.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log diagnostics to stderr")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("identify", help="OMA: the tool-tip modal model from milling records of one pose")
+    p.add_argument("records", nargs="+", help="record directories (or their record.yaml)")
+    p.add_argument("-o", "--output", default=None, help="modal model to write (robomill-modal/1 YAML)")
+    p.add_argument("--method", choices=["default", "h1"], default="default",
+                   help="default: time-domain fit refining the H1 fit; h1: the paper's estimator + fit")
+    p.add_argument("--plot", default=None, help="figure file of the identified FRF (.png, .pdf, .svg)")
+    p.add_argument("--strict", action="store_true", help="exit 1 when the excitation is insufficient")
+    _add_json(p)
+    p.set_defaults(handler=_cmd_identify)
+
+    p = sub.add_parser("check", help="check a planned toolpath point by point")
+    p.add_argument("toolpath")
+    p.add_argument("--models", required=True, nargs="+", help="modal models at one or more robot poses")
+    p.add_argument("--method", choices=["zoa", "sdm"], default="zoa")
+    p.add_argument("-o", "--output", default=None, help="figure of the path coloured by stability margin")
+    _add_json(p)
+    p.set_defaults(handler=_cmd_check)
 
     p = sub.add_parser("simulate", help="time-domain simulation of a cut, written as a record")
     p.add_argument("setup")

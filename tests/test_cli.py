@@ -89,3 +89,16 @@ def test_frf_model_needs_one_axis_per_frf_file(capsys, tmp_path):
     code, out, err = _run(capsys, "lobes", str(EXAMPLE / "setup.yaml"), "--model", str(frf), "--json")
     assert code == 2
     assert "--axis" in err and len(err.strip().splitlines()) == 1
+
+
+def test_check_flags_the_examples_deep_stretch_and_exits_1(capsys):
+    models = sorted(str(p) for p in (EXAMPLE / "poses").glob("pose_*.yaml"))
+    code, out, err = _run(capsys, "check", str(EXAMPLE / "toolpath.yaml"), "--models", *models, "--json")
+    assert code == 1, err  # violations: a negative answer
+    payload = json.loads(out)
+    kinds = {v["kind"] for v in payload["violations"]}
+    assert payload["points"] == 240
+    assert {"chatter", "pose_out_of_range"} <= kinds
+    assert kinds <= {"chatter", "surface_error", "force", "power", "pose_out_of_range"}
+    for v in payload["violations"]:
+        assert {"index", "kind", "value", "limit"} <= set(v)
