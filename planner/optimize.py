@@ -1,0 +1,1242 @@
+"""Cutting parameters that remove material fastest: one CasADi NLP per stable pocket of the lobes.
+
+The problem (robomill issue 5)::
+
+    maximise    MRR = ap ae fz N n / 60                     over n (rpm), ap (m), fz (m)
+    subject to  ap <= margin * a_lim(n)                      stability (ZOA or SDM limit)
+                |SLE(n, ap, fz)| <= tol                      surface location error
+                peak force (ap, fz) <= F_max,  peak torque (ap, fz) <= T_max
+                power = 2 pi n / 60 * ap * tau(fz) <= P_max
+                the bounds of the setup on n, ap and fz
+
+How each function enters the NLP (smooth inside one pocket):
+
+* **Stability.** The lower envelope of the lobes is smooth between two adjacent lobe crossings
+  (one lobe branch), so the speed range is cut into *pockets* there. ZOA: the exact cusps of
+  :func:`stability.zoa.envelope`, plus crossings it does not mark (two lobes with the same number
+  from different modes: the chatter frequency jumps; bisected); in each pocket the limit is a
+  Chebyshev series whose values are the exact envelope at Chebyshev-Lobatto nodes, the degree
+  doubled (32 ... 128) until the series through half the nodes reproduces the other half to
+  ``cheb_rtol``. The envelope misses lobes across eigenvalue-order swaps (:class:`_SwapGuard`);
+  those lobe pieces are added. SDM: the local maxima of the sampled diagram, each refined by a
+  golden-section search, a PCHIP through the samples, and local refinement around the best
+  pockets' answers. Pockets narrower than ``min_pocket_rel_width`` of their centre speed (hundreds
+  of tiny lobes at low speed) are merged, and the merged region uses the lower convex hull of the
+  pocket minima, one linear piece per NLP: conservative, and cheap.
+* **Surface location error** (Schmitz & Mann, IJMTM 46, 2006), exact and analytic for a modal
+  model: the force of a straight flute per unit depth has closed-form Fourier coefficients ``F_h``
+  over the engagement window (affine in fz: cutting part times fz plus edge part); a helix delays
+  the slice at height ``z`` by ``kappa z``, so the cut's harmonic is
+  ``F_h (1 - exp(-i h N kappa ap)) / (i h N kappa)``; the receptance of each mode is rational in
+  ``n``. Hence ``SLE = fz S_c(n, ap) + S_e(n, ap)`` with no interpolation in ``n`` or ``ap``
+  (the harmonics of :func:`stability.forced.default_harmonics` at the pocket's lowest speed).
+  It is not monotone in depth: with a helix the dynamic part cancels near multiples of the axial
+  pitch, so ``|SLE| <= tol`` can hold in thin bands of depth only; the start grid looks for them.
+* **Peak force and torque** do not depend on speed: for every feed on a grid the largest depth
+  with the peak within the limit is found (bracketing on a depth grid, then regula falsi), and the
+  constraint ``ap <= A(fz)`` uses a cubic B-spline of these depths (``ca.interpolant``).
+* **Power** is exact: the mean torque is linear in depth (every slice has the same mean) and affine
+  in feed, ``tau = ap (tau_c fz + tau_e)``.
+
+Every pocket is started from the best point of a grid evaluated with the same functions (a pocket
+can hold several local optima of the surface error) and solved by IPOPT (one ``ca.Opti`` per
+harmonic count, the pocket as parameters). The best answers are re-checked with
+:func:`stability.lobes.predict_point`; a violated constraint is tightened in that pocket by the
+measured ratio and the pocket solved again. An answer that cannot be verified is never returned
+with ``success=True``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, replace
+from itertools import combinations
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from oma.cutting import engagement_angles
+from oma.errors import SetupError
+from stability import zoa
+from stability.forced import default_harmonics
+from stability.lobes import LobeDiagram, OperatingPoint, lobe_diagram, predict_point
+from stability.oriented import engaged_axial_integral, force_coefficients, helix_lag_per_m, torque_coefficients
+from stability.sdm import as_modal_model
+
+__all__ = ["PlanSettings", "PocketResult", "Plan", "plan", "CONSTRAINTS"]
+
+log = logging.getLogger(__name__)
+TWO_PI = 2.0 * np.pi
+
+#: Names used in ``active_constraints`` and ``infeasible_constraint``.
+CONSTRAINTS = ("stability", "surface_error", "force", "power", "torque",
+               "rpm_min", "rpm_max", "depth_min", "depth_max", "feed_min", "feed_max")
+_PROCESS = ("stability", "surface_error", "force", "power", "torque")
+
+# Scales of the decision variables: speed / 1e4 rpm, depth / 1 mm, feed / 0.1 mm.
+RPM_SCALE, DEPTH_SCALE, FEED_SCALE = 1e4, 1e-3, 1e-4
+
+Method = Literal["auto", "zoa", "sdm"]
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """Options of :func:`plan`.
+
+    Attributes
+    ----------
+    sdm_below_immersion : float
+        ``method='auto'`` uses the SDM when ``ae / D`` is below this (flip lobes, missed by the
+        ZOA, matter at low radial immersion), the ZOA otherwise.
+    n_rpm_zoa, n_rpm_sdm : int
+        Speed grid of the lobe diagram that locates the pockets.
+    min_pocket_rel_width : float
+        Pockets narrower than this fraction of their centre speed are merged (lower hull).
+    cheb_rtol : float
+        Relative accuracy of a ZOA pocket's Chebyshev series (checked at the nodes not used).
+    seed_speeds, seed_depths, seed_feeds : int
+        Start grid per pocket.
+    force_feed_nodes : int
+        Feeds at which the depth boundary of peak force and torque is computed (>= 8).
+    recheck_rtol : float
+        A re-checked value may exceed its limit by this fraction (rounding of the limit search).
+    backoff_slack : float
+        A violated constraint is tightened to ``limit / ratio * (1 - backoff_slack)``.
+    max_backoffs : int
+        Re-solves of one pocket after failed re-checks.
+    max_iter : int
+        IPOPT iterations.
+    n_freq : int
+        ZOA chatter-frequency grid (as :func:`stability.lobes.predict_point`).
+    sdm_rtol : float
+        SDM accuracy (as :func:`stability.lobes.lobe_diagram`).
+    sdm_cusp_iterations : int
+        Golden-section steps that locate each SDM cusp (a local maximum of the sampled diagram)
+        between its neighbouring samples: each shrinks the bracket by 0.618 for one SDM limit per
+        cusp.
+    sdm_refine_rounds, sdm_refine_within : int, float
+        SDM: rounds of local refinement of the limit around the answers of the pockets whose
+        removal rate is within this fraction of the best (three new SDM limits each, at the answer
+        and on either side at a quarter of the local sample spacing, then the pocket solved again).
+    """
+
+    sdm_below_immersion: float = 0.2
+    n_rpm_zoa: int = 2000
+    n_rpm_sdm: int = 100
+    min_pocket_rel_width: float = 0.02
+    cheb_rtol: float = 1e-5
+    seed_speeds: int = 13
+    seed_depths: int = 48
+    seed_feeds: int = 9
+    force_feed_nodes: int = 17
+    recheck_rtol: float = 1e-4
+    backoff_slack: float = 2e-4
+    max_backoffs: int = 4
+    max_iter: int = 500
+    n_freq: int = 10_000
+    sdm_rtol: float = 0.01
+    sdm_cusp_iterations: int = 8
+    sdm_refine_rounds: int = 3
+    sdm_refine_within: float = 0.1
+
+    def __post_init__(self):
+        for name in ("n_rpm_zoa", "n_rpm_sdm", "seed_speeds", "seed_depths", "seed_feeds"):
+            if int(getattr(self, name)) < 3:
+                raise ValueError(f"{name} must be >= 3, found {getattr(self, name)}")
+        if self.force_feed_nodes < 8:  # a cubic B-spline interpolant needs 8 points
+            raise ValueError(f"force_feed_nodes must be >= 8, found {self.force_feed_nodes}")
+        if not 0 < self.recheck_rtol < 0.1 or not 0 <= self.backoff_slack < 0.1:
+            raise ValueError("recheck_rtol must be in (0, 0.1) and backoff_slack in [0, 0.1)")
+
+
+# ------------------------------------------------------------------------------ Chebyshev series
+def _lobatto(m: int) -> np.ndarray:
+    """Chebyshev-Lobatto points ``cos(pi j / m)``, j = 0..m (from 1 down to -1)."""
+    return np.cos(np.pi * np.arange(m + 1) / m)
+
+
+def _cheb_coeffs(values) -> np.ndarray:
+    """Coefficients of the degree-m interpolant through values at :func:`_lobatto` (m) points."""
+    v = np.asarray(values, dtype=float)
+    m = v.size - 1
+    if m == 0:
+        return v.copy()
+    j = np.arange(m + 1)
+    w = np.ones(m + 1)
+    w[0] = w[-1] = 0.5
+    c = (2.0 / m) * (np.cos(np.pi * np.outer(j, j) / m) @ (w * v))
+    c[0] *= 0.5
+    c[-1] *= 0.5
+    return c
+
+
+def _cheb_eval(coeffs, x):
+    """Clenshaw sum of a Chebyshev series at ``x`` in [-1, 1]; NumPy arrays or CasADi symbols."""
+    b1, b2 = 0.0 * x, 0.0 * x
+    for c in coeffs[:0:-1]:
+        b1, b2 = 2.0 * x * b1 - b2 + c, b1
+    return x * b1 - b2 + coeffs[0]
+
+
+@dataclass(frozen=True)
+class _Pocket:
+    """One speed interval with a smooth stability limit ``a_lim(n)`` (Chebyshev series)."""
+
+    rpm_lo: float
+    rpm_hi: float
+    coeffs: np.ndarray
+    kind: str  # 'lobe' (ZOA exact), 'sampled' (SDM samples), 'hull' (merged narrow pockets)
+
+    def x(self, rpm):
+        return (2.0 * rpm - (self.rpm_lo + self.rpm_hi)) / (self.rpm_hi - self.rpm_lo)
+
+    def limit(self, rpm):
+        """Limit depth, m, at speeds inside the pocket (NumPy or CasADi)."""
+        return _cheb_eval(self.coeffs, self.x(rpm))
+
+
+# ------------------------------------------------------------------------------- stability model
+def _pocket_breaks_zoa(diagram: LobeDiagram, lo: float, hi: float, chatter_at) -> np.ndarray:
+    """Pocket ends: the diagram's cusps, plus cusps it does not mark.
+
+    Two lobes with the same number ``k`` from different modes (a robot mode's lobe 0 and a tool
+    mode's lobe 0) cross without an intersection point in :func:`stability.zoa.envelope`; there
+    the chatter frequency jumps between neighbouring grid speeds. Each such jump is bisected on
+    speed (``chatter_at(rpm) -> Hz``) to the crossing.
+    """
+    rpm = np.asarray(diagram.rpm)
+    f = np.asarray(diagram.chatter_frequency_hz)
+    inter = np.asarray(diagram.is_intersection)
+    cusps = list(rpm[inter])
+    i = np.flatnonzero(~inter[:-1] & ~inter[1:] & np.isfinite(f[:-1]) & np.isfinite(f[1:]))
+    jump = i[np.abs(np.log(f[i + 1] / f[i])) > np.log(1.0 + _CHATTER_JUMP)]
+    if jump.size:
+        a, b = rpm[jump].copy(), rpm[jump + 1].copy()
+        fa, fb = f[jump], f[jump + 1]
+        for _ in range(60):
+            mid = 0.5 * (a + b)
+            fm = chatter_at(mid)
+            left = np.abs(np.log(fm / fa)) < np.abs(np.log(fm / fb))
+            a, b = np.where(left, mid, a), np.where(left, b, mid)
+            if np.all(b - a <= 1e-10 * b):
+                break
+        cusps += list(0.5 * (a + b))
+        log.info("%d lobe crossings not marked in the diagram, located by bisection", jump.size)
+    cusps = np.asarray(cusps, dtype=float)
+    return np.unique(np.concatenate([[lo], cusps[(cusps > lo) & (cusps < hi)], [hi]]))
+
+
+# Relative jump of the chatter frequency between neighbouring speeds that marks a lobe change
+# (along one lobe it changes by well under 1 % between grid speeds).
+_CHATTER_JUMP = 0.05
+
+
+def _sdm_samples(diagram: LobeDiagram, limit_at, lo: float, hi: float, iterations: int):
+    """SDM samples with every cusp located by golden-section search, and the pocket ends.
+
+    The cusps of a sampled diagram are its local maxima; between the neighbouring samples the
+    envelope is unimodal (two lobe branches meeting), so each is refined by golden-section steps
+    (``limit_at(rpm_array) -> depth_array``, all cusps at once). Returns the speeds and limits
+    of all samples (sorted) and the breaks (range ends and refined cusps).
+    """
+    r = np.asarray(diagram.rpm, dtype=float)
+    d = np.asarray(diagram.depth_limit_m, dtype=float)
+    d = np.where(np.isfinite(d), d, 1.0)  # no limit found below the search depth
+    peak = np.flatnonzero((d[1:-1] > d[:-2]) & (d[1:-1] >= d[2:])) + 1
+    extra_r, extra_d = [], []
+    best_r, best_d = r[peak].copy(), d[peak].copy()
+    if peak.size and iterations > 0:
+        g = (np.sqrt(5.0) - 1.0) / 2.0
+        a, b = r[peak - 1].copy(), r[peak + 1].copy()
+        c, e = b - g * (b - a), a + g * (b - a)
+        fc, fe = limit_at(c), limit_at(e)
+        extra_r += [c, e]
+        extra_d += [fc, fe]
+        for _ in range(iterations - 1):
+            left = fc >= fe  # the maximum is in [a, e]
+            a, b = np.where(left, a, c), np.where(left, e, b)
+            new = np.where(left, b - g * (b - a), a + g * (b - a))
+            fn = limit_at(new)
+            c, fc, e, fe = (np.where(left, new, e), np.where(left, fn, fe), np.where(left, c, new),
+                            np.where(left, fc, fn))
+            extra_r.append(new)
+            extra_d.append(fn)
+        allr = np.concatenate([r[peak][None]] + [x[None] for x in extra_r])
+        alld = np.concatenate([d[peak][None]] + [x[None] for x in extra_d])
+        i = np.argmax(alld, axis=0)
+        best_r, best_d = allr[i, np.arange(peak.size)], alld[i, np.arange(peak.size)]
+    rr = np.concatenate([r] + extra_r)
+    dd = np.concatenate([d] + [np.where(np.isfinite(x), x, 1.0) for x in extra_d])
+    rr, idx = np.unique(rr, return_index=True)
+    breaks = np.unique(np.concatenate([[lo], best_r[(best_r > lo) & (best_r < hi)], [hi]]))
+    return rr, dd[idx], breaks
+
+
+def _lower_hull(x, y):
+    """Vertices of the lower convex hull of points sorted by x (monotone chain)."""
+    hull = []
+    for p in zip(x, y):
+        while len(hull) >= 2:
+            (x1, y1), (x2, y2) = hull[-2], hull[-1]
+            if (x2 - x1) * (p[1] - y1) - (y2 - y1) * (p[0] - x1) <= 0:
+                hull.pop()
+            else:
+                break
+        hull.append(p)
+    return np.array(hull)
+
+
+def _linear_pocket(x0, y0, x1, y1) -> _Pocket:
+    return _Pocket(float(x0), float(x1), np.array([(y0 + y1) / 2.0, (y1 - y0) / 2.0]), "hull")
+
+
+class _SwapGuard:
+    """Lobe pieces across eigenvalue-order swaps, which :func:`stability.zoa.envelope` leaves out.
+
+    The envelope skips every chatter-frequency interval over which a branch's phase jumps by
+    ``pi / 2`` or more (an ordering swap of the two eigenvalues). Each eigenvalue's lobe goes on
+    across the swap on the *other* branch, so speeds reached only through such an interval lose
+    their lowest lobe there, and the envelope (and :func:`stability.lobes.predict_point`) report
+    a higher one: measured on a 720/735 Hz tool, three flutes, ae/D = 0.1, 49.9 mm instead of
+    6.0 mm over 9934-9941 rpm. This guard pairs branch ``b`` at ``f_j`` with branch ``1 - b`` at
+    ``f_j+1`` where their phases agree, and gives each such piece of every lobe the smaller of the
+    two end depths (conservative over one frequency step); the planner uses the smaller of the
+    envelope and the guard.
+    """
+
+    def __init__(self, curves, rpm_lo: float, rpm_hi: float):
+        f, d, ph, n_t = curves.freq_hz, curves.depth_m, curves.phase_rad, curves.teeth
+        lo, hi, depth, freq = [], [], [], []
+        for b in (0, 1):
+            j = np.flatnonzero(np.isfinite(d[b][:-1]) & np.isfinite(d[1 - b][1:])
+                               & (np.abs(np.diff(ph[b])) >= np.pi / 2))
+            j = j[np.abs(ph[1 - b][j + 1] - ph[b][j]) < np.pi / 2]
+            for jj in j:
+                k = np.arange(0, int(np.ceil(60.0 * f[jj + 1] / (n_t * rpm_lo))) + 1)
+                xa = 60.0 * f[jj] / (n_t * (ph[b][jj] / TWO_PI + k))
+                xb = 60.0 * f[jj + 1] / (n_t * (ph[1 - b][jj + 1] / TWO_PI + k))
+                keep = (np.maximum(xa, xb) >= rpm_lo) & (np.minimum(xa, xb) <= rpm_hi)
+                lo.append(np.minimum(xa, xb)[keep])
+                hi.append(np.maximum(xa, xb)[keep])
+                depth.append(np.full(keep.sum(), min(d[b][jj], d[1 - b][jj + 1])))
+                freq.append(np.full(keep.sum(), f[jj]))
+        cat = (lambda a: np.concatenate(a) if a else np.zeros(0))
+        self.lo, self.hi, self.depth, self.freq = cat(lo), cat(hi), cat(depth), cat(freq)
+
+    def __call__(self, rpm):
+        """Guard depth (inf where no piece covers the speed) and its chatter frequency."""
+        rpm = np.asarray(rpm, dtype=float)
+        if self.lo.size == 0:
+            return np.full(rpm.shape, np.inf), np.full(rpm.shape, np.nan)
+        cover = (rpm[..., None] >= self.lo) & (rpm[..., None] <= self.hi)
+        d = np.where(cover, self.depth, np.inf)
+        i = np.argmin(d, axis=-1)
+        return np.min(d, axis=-1), np.where(np.isfinite(np.min(d, axis=-1)), self.freq[i], np.nan)
+
+
+# A Chebyshev series of the SDM's PCHIP (only once differentiable at the samples) is accepted at
+# this relative accuracy: well inside the SDM's own (PlanSettings.sdm_rtol = 1 %).
+_SAMPLED_CHEB_RTOL = 1e-3
+
+
+def _build_pockets(breaks, value_fn, settings: PlanSettings, *, sampled: bool, merge: bool = True) -> list[_Pocket]:
+    """Pockets between consecutive breaks; narrow ones merged into lower-hull pieces (``merge``).
+
+    ``value_fn(rpm_array) -> depth_array`` gives the limit (exact ZOA, or the SDM PCHIP).
+    """
+    lo, hi = breaks[:-1], breaks[1:]
+    narrow = (hi - lo) / (0.5 * (hi + lo)) < settings.min_pocket_rel_width
+    if not merge:
+        narrow[:] = False
+    pockets: list[_Pocket] = []
+    wide = np.flatnonzero(~narrow)
+    # --- wide pockets: Chebyshev series, degree doubled until converged (ZOA) -------------------
+    degree = {int(i): 16 for i in wide}
+    coeffs: dict[int, np.ndarray] = {}
+    pending = list(degree)
+    while pending:
+        nodes = {i: 0.5 * (lo[i] + hi[i]) + 0.5 * (hi[i] - lo[i]) * _lobatto(2 * degree[i]) for i in pending}
+        allr = np.concatenate([nodes[i] for i in pending])
+        vals = value_fn(allr)
+        again, k = [], 0
+        for i in pending:
+            v = vals[k:k + nodes[i].size]
+            k += nodes[i].size
+            v = np.where(np.isfinite(v), v, 1.0)  # no limit found: any depth (bounded by ap_hi)
+            c_half = _cheb_coeffs(v[::2])
+            err = np.max(np.abs(_cheb_eval(c_half, _lobatto(2 * degree[i])[1::2]) - v[1::2]))
+            rtol = _SAMPLED_CHEB_RTOL if sampled else settings.cheb_rtol
+            if err <= rtol * np.min(v) or degree[i] >= 64:
+                if err > rtol * np.min(v):
+                    log.info("pocket %.0f-%.0f rpm: Chebyshev series not converged (rel. error %.1e)",
+                             lo[i], hi[i], err / np.min(v))
+                coeffs[i] = _cheb_coeffs(v)
+            else:
+                degree[i] *= 2
+                again.append(i)
+        pending = again
+    # --- runs of narrow pockets: lower convex hull of the pocket minima -------------------------
+    runs, i = [], 0
+    while i < narrow.size:
+        if narrow[i]:
+            j = i
+            while j + 1 < narrow.size and narrow[j + 1]:
+                j += 1
+            runs.append((i, j))
+            i = j + 1
+        else:
+            i += 1
+    hull_pockets: dict[int, list[_Pocket]] = {}
+    for i, j in runs:
+        r = np.concatenate([np.linspace(lo[p], hi[p], 9) for p in range(i, j + 1)])
+        v = value_fn(r).reshape(j - i + 1, 9)
+        v = np.where(np.isfinite(v), v, 1.0)
+        rr = r.reshape(j - i + 1, 9)
+        arg = np.argmin(v, axis=1)
+        xm, ym = rr[np.arange(arg.size), arg], v[np.arange(arg.size), arg]
+        # ends of the run: the envelope there, so the hull spans the whole run
+        xs = np.concatenate([[lo[i]], xm, [hi[j]]])
+        ys = np.concatenate([[min(v[0, 0], ym.min())], ym, [min(v[-1, -1], ym.min())]])
+        order = np.argsort(xs, kind="stable")
+        xs, ys = xs[order], ys[order]
+        keep = np.concatenate([[True], np.diff(xs) > 0])
+        h = _lower_hull(xs[keep], ys[keep])
+        hull_pockets[i] = [_linear_pocket(*h[q], *h[q + 1]) for q in range(len(h) - 1)]
+    for p in range(lo.size):
+        if p in coeffs:
+            pockets.append(_Pocket(float(lo[p]), float(hi[p]), coeffs[p], "sampled" if sampled else "lobe"))
+        elif p in hull_pockets:
+            pockets.extend(hull_pockets[p])
+    return pockets
+
+
+# --------------------------------------------------------------------------------- process model
+def _window_harmonics(st: float, ex: float, teeth: int, n_harm: int) -> np.ndarray:
+    """``W[h, k] = (N / 2 pi) int_st^ex b_k(psi) exp(-i h N psi) dpsi``, shape (n_harm + 1, 6).
+
+    The Fourier coefficients, over one tooth period, of the engaged basis ``(1, s, c, s^2, c^2, s c)``
+    summed over the teeth (straight flute, per unit depth), in closed form from
+    ``b_k = sum_m w_km exp(i m psi)``.
+    """
+    w = {0: {0: 1.0}, 1: {1: -0.5j, -1: 0.5j}, 2: {1: 0.5, -1: 0.5},
+         3: {0: 0.5, 2: -0.25, -2: -0.25}, 4: {0: 0.5, 2: 0.25, -2: 0.25}, 5: {2: -0.25j, -2: 0.25j}}
+    h = np.arange(n_harm + 1)
+    out = np.zeros((n_harm + 1, 6), dtype=complex)
+    for k, terms in w.items():
+        for m, wk in terms.items():
+            mu = (m - h * teeth).astype(float)
+            safe = np.where(mu == 0, 1.0, mu)
+            integral = np.where(mu == 0, ex - st,
+                                (np.exp(1j * safe * ex) - np.exp(1j * safe * st)) / (1j * safe))
+            out[:, k] += wk * integral
+    return teeth / TWO_PI * out
+
+
+class _CutModel:
+    """Surface error, peak force/torque and power of one cut as functions of ``(n, ap, fz)``."""
+
+    def __init__(self, model, tool, cut, coef):
+        self.model, self.tool, self.cut, self.coef = model, tool, cut, coef
+        self.teeth = int(tool.teeth)
+        self.kappa = helix_lag_per_m(tool)
+        self.st, self.ex = engagement_angles(tool, cut)
+        self.phi_fin, self.sign = (np.pi, 1.0) if cut.milling == "down" else (0.0, -1.0)
+        self.fc_e = force_coefficients(coef, 0.0)  # (3, 6) cut frame, edge part
+        self.fc_c = force_coefficients(coef, 1.0) - self.fc_e  # per unit feed
+        radius = tool.diameter_m / 2.0
+        self.tc_e = torque_coefficients(coef, 0.0, radius)
+        self.tc_c = torque_coefficients(coef, 1.0, radius) - self.tc_e
+        w0 = _window_harmonics(self.st, self.ex, self.teeth, 0)[0].real
+        self.tau_c, self.tau_e = float(self.tc_c @ w0), float(self.tc_e @ w0)  # mean torque / depth
+        self._sle_cache: dict[int, ca.Function] = {}
+        self._coeff_cache: dict[int, dict] = {}
+        self._phi_grid = (TWO_PI / self.teeth) * np.arange(4096) / 4096
+
+    # ---- power (exact) ---------------------------------------------------------------------------
+    def power(self, rpm, ap, fz):
+        """Mean spindle power, W (NumPy or CasADi)."""
+        return TWO_PI * rpm / 60.0 * ap * (self.tau_c * fz + self.tau_e)
+
+    # ---- surface location error (exact, analytic) ------------------------------------------------
+    def _sle_coeffs(self, n_harm: int):
+        """Coefficients of ``S_c`` (per unit feed) and ``S_e``, cached per harmonic count.
+
+        ``S = s0 ap + 2 Re sum_h [beta_h + sum_r alpha_hr / D_r(h f_T)] hel_h(ap)`` with the wall
+        rotation ``exp(i h N phi_fin)`` folded into ``alpha`` and ``beta``, ``D_r = 1 - rho^2 +
+        2 i zeta_r rho`` and ``hel_h = int_0^ap exp(-i theta_h z) dz``.
+        """
+        if n_harm in self._coeff_cache:
+            return self._coeff_cache[n_harm]
+        m, n_t = self.model, self.teeth
+        nvec = self.cut.normal_direction
+        wh = _window_harmonics(self.st, self.ex, n_t, n_harm)  # (H+1, 6)
+        h = np.arange(1, n_harm + 1)
+        rot = np.exp(1j * h * n_t * self.phi_fin)
+        modes = [r for r in range(m.n_modes) if abs(float(nvec @ m.directions[r])) >= 1e-12]
+        static, beta, alpha = np.zeros(2), np.zeros((2, n_harm), complex), np.zeros((2, len(modes), n_harm), complex)
+        for p, fc in enumerate((self.fc_c, self.fc_e)):
+            force_h = self.cut.frame.T @ (fc @ wh.T)  # (3, H+1) machine frame, per unit depth
+            static[p] = self.sign * float(nvec @ m.static_compliance_m_N @ force_h[:, 0].real)
+            beta[p] = self.sign * (nvec @ m.residual_compliance_m_N @ force_h[:, 1:]) * rot
+            for q, r in enumerate(modes):
+                proj = self.sign * float(nvec @ m.directions[r])
+                alpha[p, q] = proj * (m.directions[r] @ force_h[:, 1:]) * rot / m.stiffness_N_m[r]
+        out = dict(h=h, theta=h * n_t * self.kappa, static=static, beta=beta, alpha=alpha,
+                   fn=m.natural_frequency_hz[modes], zeta=m.damping_ratio[modes])
+        self._coeff_cache[n_harm] = out
+        return out
+
+    def sle_parts(self, rpm, ap, n_harm: int):
+        """``(S_c, S_e)`` at arrays ``rpm``, ``ap`` of one shape (NumPy; the same sums as
+        :meth:`sle_function`), m (``S_c`` per unit feed)."""
+        c = self._sle_coeffs(n_harm)
+        rpm, ap = np.broadcast_arrays(np.asarray(rpm, dtype=float), np.asarray(ap, dtype=float))
+        shape = rpm.shape
+        rpm, ap = rpm.ravel()[:, None], ap.ravel()[:, None]
+        theta = c["theta"][None, :]
+        hel = ap + 0j if not self.kappa else (1.0 - np.exp(-1j * theta * ap)) / (1j * theta)
+        rho = c["h"][None, None, :] * (self.teeth * rpm / 60.0)[:, None, :] / c["fn"][None, :, None]
+        inv_d = 1.0 / (1.0 - rho**2 + 2j * c["zeta"][None, :, None] * rho)  # (P, R, H)
+        out = []
+        for p in range(2):
+            acc = c["beta"][p][None, :] + np.einsum("rh,prh->ph", c["alpha"][p], inv_d)
+            out.append((c["static"][p] * ap[:, 0] + 2.0 * np.real(np.sum(acc * hel, axis=1))).reshape(shape))
+        return out
+
+    def sle_function(self, n_harm: int) -> ca.Function:
+        """``(rpm, ap) -> (S_c, S_e)`` with ``SLE = fz S_c + S_e``, m (CasADi, for the NLP)."""
+        if n_harm in self._sle_cache:
+            return self._sle_cache[n_harm]
+        c = self._sle_coeffs(n_harm)
+        rpm, ap = ca.SX.sym("rpm"), ca.SX.sym("ap")
+        f_tooth = self.teeth * rpm / 60.0
+        if self.kappa:
+            th = ca.DM(c["theta"])
+            hel_re, hel_im = ca.sin(th * ap) / th, -(1.0 - ca.cos(th * ap)) / th
+        else:
+            hel_re, hel_im = ca.DM.ones(n_harm) * ap, ca.DM.zeros(n_harm) * ap
+        out = []
+        for p in range(2):
+            acc_re, acc_im = ca.DM(c["beta"][p].real) + 0 * ap, ca.DM(c["beta"][p].imag) + 0 * ap
+            for q in range(c["fn"].size):
+                rho = ca.DM(c["h"] / c["fn"][q]) * f_tooth
+                a_re, a_im = 1.0 - rho**2, 2.0 * c["zeta"][q] * rho
+                den = a_re**2 + a_im**2
+                g_re, g_im = a_re / den, -a_im / den  # 1 / D
+                al_re, al_im = ca.DM(c["alpha"][p, q].real), ca.DM(c["alpha"][p, q].imag)
+                acc_re = acc_re + al_re * g_re - al_im * g_im
+                acc_im = acc_im + al_re * g_im + al_im * g_re
+            out.append(c["static"][p] * ap + 2.0 * ca.sum1(acc_re * hel_re - acc_im * hel_im))
+        fn = ca.Function(f"sle_{n_harm}", [rpm, ap], out, ["rpm", "ap"], ["S_c", "S_e"])
+        self._sle_cache[n_harm] = fn
+        return fn
+
+    def harmonics_at(self, rpm_lo: float) -> int:
+        return default_harmonics(self.model, self.tool, rpm_lo)
+
+    # ---- peak force and torque (speed-independent) ----------------------------------------------
+    def peaks(self, ap: float, fz) -> tuple[np.ndarray, np.ndarray]:
+        """Largest in-plane force (N) and torque (N m) over a tooth period, at one depth and feeds
+        ``fz`` (array): a fine angle grid plus both sides of every entry/exit angle."""
+        fz = np.atleast_1d(np.asarray(fz, dtype=float))
+        pitch = TWO_PI / self.teeth
+        lag = self.kappa * ap
+        base = np.array([self.st, self.ex, self.st + lag, self.ex + lag])
+        crit = np.mod(base[:, None] - pitch * np.arange(self.teeth), pitch).ravel()
+        eps = 1e-9 * pitch
+        phi = np.concatenate([self._phi_grid, crit - eps, crit, crit + eps])
+        e = engaged_axial_integral(self.tool, self.cut, phi, ap)  # (M, 6)
+        fe, fcut = e @ self.fc_e[:2].T, e @ self.fc_c[:2].T  # (M, 2): f, n components
+        f = fe[None] + fz[:, None, None] * fcut[None]
+        force = np.max(np.hypot(f[..., 0], f[..., 1]), axis=1)
+        torque = np.max((e @ self.tc_e)[None] + fz[:, None] * (e @ self.tc_c)[None], axis=1)
+        return force, torque
+
+    def depth_boundary(self, which: int, limit: float, feeds, ap_lo: float, ap_hi: float) -> np.ndarray:
+        """Largest depth (first crossing) with peak force (``which=0``) or torque (1) <= limit, per
+        feed; ``2 ap_hi`` where the limit is not reached below that."""
+        feeds = np.asarray(feeds, dtype=float)
+        grid = np.geomspace(0.25 * ap_lo, 2.0 * ap_hi, 25)
+        vals = np.array([self.peaks(a, feeds)[which] for a in grid])  # (n_ap, n_feed)
+        out = np.full(feeds.size, 2.0 * ap_hi)
+        for j in range(feeds.size):
+            over = np.flatnonzero(vals[:, j] > limit)
+            if over.size == 0:
+                continue
+            i = over[0]
+            if i == 0:  # below the grid: the peak is close to proportional to the depth there
+                out[j] = grid[0] * limit / vals[0, j]
+                continue
+            a, b = grid[i - 1], grid[i]
+            ga, gb = vals[i - 1, j] - limit, vals[i, j] - limit
+            for _ in range(40):  # Illinois regula falsi
+                c = b - gb * (b - a) / (gb - ga)
+                gc = self.peaks(c, feeds[j:j + 1])[which][0] - limit
+                if gc > 0:
+                    b, gb = c, gc
+                    ga *= 0.5
+                else:
+                    a, ga = c, gc
+                    gb *= 0.5
+                if b - a <= 1e-10 * b or gc == 0:
+                    break
+            out[j] = a
+        return out
+
+
+# --------------------------------------------------------------------------------------- results
+def _ro(a):
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+def _jf(x):
+    return None if x is None or not math.isfinite(float(x)) else float(x)
+
+
+@dataclass(frozen=True)
+class PocketResult:
+    """The NLP of one pocket.
+
+    Attributes
+    ----------
+    rpm_range : (float, float)
+        Speed interval of the pocket, rpm.
+    kind : str
+        ``'lobe'`` (exact ZOA branch), ``'sampled'`` (SDM samples), ``'hull'`` (merged narrow pockets).
+    start : ndarray, shape (3,)
+        Start point ``(rpm, ap_m, fz_m)`` (best point of the pocket's seed grid).
+    solution : ndarray, shape (3,)
+        NLP answer ``(rpm, ap_m, fz_m)``.
+    mrr_m3_s : float
+        Removal rate of the answer (NaN when the pocket has no feasible answer).
+    solver_status : str
+        IPOPT's return status of the last solve.
+    feasible : bool
+        The answer meets the pocket's (surrogate) constraints.
+    verified : bool or None
+        Re-checked with :func:`stability.lobes.predict_point` (None: not re-checked, because a
+        better pocket was verified first).
+    backoffs : int
+        Re-solves after failed re-checks.
+    """
+
+    rpm_range: tuple[float, float]
+    kind: str
+    start: np.ndarray
+    solution: np.ndarray
+    mrr_m3_s: float
+    solver_status: str
+    feasible: bool
+    verified: bool | None = None
+    backoffs: int = 0
+
+    def to_dict(self) -> dict:
+        return {"rpm_range": [float(v) for v in self.rpm_range], "kind": self.kind,
+                "start": {"spindle_rpm": float(self.start[0]), "axial_depth_m": float(self.start[1]),
+                          "feed_per_tooth_m": float(self.start[2])},
+                "solution": {"spindle_rpm": float(self.solution[0]), "axial_depth_m": float(self.solution[1]),
+                             "feed_per_tooth_m": float(self.solution[2])},
+                "mrr_m3_s": _jf(self.mrr_m3_s), "solver_status": self.solver_status,
+                "feasible": bool(self.feasible), "verified": self.verified, "backoffs": int(self.backoffs)}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Recommended cutting parameters (the answer of :func:`plan`).
+
+    Attributes
+    ----------
+    success : bool
+        A verified optimum was found.
+    status : str
+        ``'optimal'``; ``'infeasible'`` (no point meets every constraint); ``'unverified'``
+        (answers of the NLP failed the re-check); ``'not_converged'`` (IPOPT stopped short in the
+        best pocket: the point is verified feasible but not certified optimal; ``success`` is
+        False, the parameters are still given).
+    message : str
+        One line for people.
+    method : str
+        ``'zoa'`` or ``'sdm'`` (the stability model used).
+    spindle_rpm, axial_depth_m, feed_per_tooth_m, mrr_m3_s : float or None
+        The optimum (None when no point was verified). MRR in m^3/s.
+    active_constraints : tuple of str
+        Constraints at their limit at the optimum (names in :data:`CONSTRAINTS`).
+    infeasible_constraint : str or None
+        Without success: the constraint that cannot be met even alone, or two joined by ``'+'``
+        when each can be met alone but not both together.
+    stability_margin : float
+        Fraction of the limit depth planned.
+    point : OperatingPoint or None
+        :func:`stability.lobes.predict_point` at the optimum.
+    pockets : tuple of PocketResult
+        Every pocket's start and answer.
+    diagram : LobeDiagram
+        The lobe diagram that located the pockets.
+    elapsed_s : float
+    """
+
+    success: bool
+    status: str
+    message: str
+    method: str
+    spindle_rpm: float | None
+    axial_depth_m: float | None
+    feed_per_tooth_m: float | None
+    mrr_m3_s: float | None
+    active_constraints: tuple[str, ...]
+    infeasible_constraint: str | None
+    stability_margin: float
+    point: OperatingPoint | None
+    pockets: tuple[PocketResult, ...]
+    diagram: LobeDiagram
+    elapsed_s: float = 0.0
+
+    def to_dict(self) -> dict:
+        """JSON-ready mapping: the cli.md keys of ``plan`` and the details."""
+        return {
+            "success": bool(self.success), "status": self.status, "message": self.message,
+            "method": self.method, "spindle_rpm": _jf(self.spindle_rpm),
+            "axial_depth_m": _jf(self.axial_depth_m), "feed_per_tooth_m": _jf(self.feed_per_tooth_m),
+            "mrr_m3_s": _jf(self.mrr_m3_s), "active_constraints": list(self.active_constraints),
+            "infeasible_constraint": self.infeasible_constraint,
+            "stability_margin": float(self.stability_margin),
+            "predicted": None if self.point is None else self.point.to_dict(),
+            "pockets": [p.to_dict() for p in self.pockets], "elapsed_s": float(self.elapsed_s),
+        }
+
+    def plot(self, ax=None):
+        """Lobes, the planned-depth line, pocket answers and the optimum (see
+        :func:`planner.plan_plots.plot_plan`)."""
+        from .plan_plots import plot_plan
+
+        return plot_plan(self, ax=ax)
+
+
+# ------------------------------------------------------------------------------------ the problem
+@dataclass(frozen=True)
+class _Bounds:
+    rpm: tuple[float, float]
+    ap: tuple[float, float]
+    fz: tuple[float, float]
+    margin: float
+    sle: float | None
+    force: float | None
+    torque: float | None
+    power: float | None
+
+
+def _bounds(setup) -> _Bounds:
+    lim = setup.limits
+    if setup.material.cutting_coefficients is None:
+        raise SetupError(None, "material.cutting_coefficients", "cutting coefficients to plan with", "none")
+    if lim.spindle_rpm is None:
+        raise SetupError(None, "limits.spindle_rpm", "a [low, high] speed range to plan in", "none")
+    if lim.axial_depth_m is None:
+        raise SetupError(None, "limits.axial_depth_m", "a [low, high] depth range to plan in", "none")
+    fz = lim.feed_per_tooth_m or (setup.cut.feed_per_tooth_m,) * 2
+    rpm = tuple(float(v) for v in lim.spindle_rpm)
+    if not rpm[0] < rpm[1]:
+        raise SetupError(None, "limits.spindle_rpm", "low < high", f"{list(rpm)}")
+    return _Bounds(rpm, tuple(float(v) for v in lim.axial_depth_m), tuple(float(v) for v in fz),
+                   float(lim.stability_margin or 1.0), lim.surface_location_error_m, lim.max_force_N,
+                   lim.spindle_torque_N_m, lim.spindle_power_W)
+
+
+@dataclass(frozen=True)
+class _NLP:
+    opti: ca.Opti
+    x: tuple
+    p: tuple
+    sle_fn: ca.Function
+
+
+# IPOPT return states taken as converged.
+_CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+# Harmonic counts for which NLPs are built (a pocket takes the first >= its default count).
+_HARMONIC_LADDER = (32, 64, 128, 256, 512, 1024, 2048)
+# Longest Chebyshev series of a pocket's limit (degree 128).
+_MAX_COEFFS = 129
+
+
+class _Problem:
+    """Everything the NLPs share: the cut model, the boundaries of force and torque, the limits."""
+
+    def __init__(self, setup, model, settings: PlanSettings):
+        self.setup, self.settings = setup, settings
+        self.b = _bounds(setup)
+        self.cm = _CutModel(model, setup.tool, setup.cut, setup.material.cutting_coefficients)
+        fz_lo, fz_hi = self.b.fz
+        self.fixed_feed = fz_hi <= fz_lo
+        # The spline's grid reaches 5 % of the feed range beyond each bound: a B-spline is zero
+        # outside its grid, and IPOPT may step past a bound by its bound relaxation (~1e-8).
+        pad = 0.05 * (fz_hi - fz_lo)
+        self.feed_nodes = (np.array([fz_lo]) if self.fixed_feed
+                           else np.linspace(max(fz_lo - pad, 0.5 * fz_lo), fz_hi + pad, settings.force_feed_nodes))
+        self._nlps: dict[int, _NLP] = {}
+        self.guard: _SwapGuard | None = None  # ZOA: lobes the envelope misses (see _SwapGuard)
+        self.boundary: dict[str, tuple[np.ndarray, ca.Function | None]] = {}
+        for name, which, limit in (("force", 0, self.b.force), ("torque", 1, self.b.torque)):
+            if limit is None:
+                continue
+            depth = self.cm.depth_boundary(which, float(limit), self.feed_nodes, *self.b.ap)
+            fn = None if self.fixed_feed else ca.interpolant(f"{name}_boundary", "bspline", [self.feed_nodes], depth)
+            self.boundary[name] = (depth, fn)
+
+    def boundary_depth(self, name, fz):
+        """Depth boundary of ``name`` ('force'/'torque') at feed ``fz`` (NumPy or CasADi)."""
+        depth, fn = self.boundary[name]
+        if fn is None:
+            return float(depth[0]) + 0.0 * fz
+        if isinstance(fz, (ca.MX, ca.SX)):
+            return fn(fz)
+        u, inv = np.unique(np.asarray(fz, dtype=float), return_inverse=True)  # few distinct feeds
+        return np.asarray(fn(u[None, :])).ravel()[inv].reshape(np.shape(fz))
+
+    def masks(self, pocket: _Pocket, n_harm, rpm, ap, fz, factors, sle_parts=None) -> dict[str, np.ndarray]:
+        """Which constraints hold at points ``(rpm, ap, fz)`` (arrays of one shape), as the NLP sees
+        them (back-off factors included); ``sle_parts`` may give ``(S_c, S_e)`` at the points."""
+        b = self.b
+        rpm, ap, fz = (np.asarray(v, dtype=float) for v in np.broadcast_arrays(rpm, ap, fz))
+        out = {"stability": ap <= factors["stability"] * b.margin * pocket.limit(rpm)}
+        if b.sle is not None:
+            s_c, s_e = sle_parts if sle_parts is not None else self.cm.sle_parts(rpm, ap, n_harm)
+            out["surface_error"] = np.abs(fz * s_c + s_e) <= factors["surface_error"] * b.sle
+        for name in ("force", "torque"):
+            if name in self.boundary:
+                out[name] = ap <= factors[name] * self.boundary_depth(name, fz)
+        if b.power is not None:
+            out["power"] = self.cm.power(rpm, ap, fz) <= factors["power"] * b.power
+        return out
+
+    def seed(self, pocket: _Pocket, n_harm: int, factors):
+        """Best point of a pocket's start grid (or the least violating one) and the constraint masks.
+
+        Speeds at Chebyshev points of the pocket (its ends included), depths geometric from the
+        lowest depth up to the stability cap at each speed, feeds evenly spaced; and, because
+        ``|SLE| <= tol`` can hold only in thin bands of depth (with a helix the dynamic surface
+        error cancels near multiples of the axial pitch), the crossings in depth of zero and of
+        the band edges ``+-0.999 tol`` at every speed and feed as extra depths.
+        """
+        s, b = self.settings, self.b
+        x = np.cos(np.pi * np.arange(s.seed_speeds) / (s.seed_speeds - 1))[::-1]
+        rpm = np.clip(0.5 * (pocket.rpm_lo + pocket.rpm_hi) + 0.5 * (pocket.rpm_hi - pocket.rpm_lo) * x,
+                      pocket.rpm_lo, pocket.rpm_hi)
+        cap = np.clip(factors["stability"] * b.margin * pocket.limit(rpm), b.ap[0], b.ap[1])
+        t = np.linspace(0.0, 1.0, s.seed_depths)
+        ap = b.ap[0] * (cap[:, None] / b.ap[0]) ** t[None, :]  # (I, J)
+        fz = self.feed_nodes[:1] if self.fixed_feed else np.linspace(b.fz[0], b.fz[1], s.seed_feeds)
+        shape = ap.shape + (fz.size,)
+        pts = [np.broadcast_to(rpm[:, None, None], shape), np.broadcast_to(ap[..., None], shape),
+               np.broadcast_to(fz, shape)]
+        parts = None
+        if b.sle is not None:
+            s_c, s_e = self.cm.sle_parts(np.broadcast_to(rpm[:, None], ap.shape), ap, n_harm)
+            sle = fz * s_c[..., None] + s_e[..., None]  # (I, J, K)
+            parts = [np.broadcast_to(s_c[..., None], shape).ravel(), np.broadcast_to(s_e[..., None], shape).ravel()]
+            # crossings of zero and of the band edges (just inside) in depth
+            tol = 0.999 * factors["surface_error"] * b.sle
+            xs = [[], [], []]
+            for level in (-tol, 0.0, tol):
+                g = sle - level
+                i, j, k = np.nonzero(np.sign(g[:, :-1]) * np.sign(g[:, 1:]) < 0)
+                w = g[i, j, k] / (g[i, j, k] - g[i, j + 1, k])
+                xs[0].append(rpm[i])
+                xs[1].append(ap[i, j] + w * (ap[i, j + 1] - ap[i, j]))
+                xs[2].append(fz[k])
+            xs = [np.concatenate(v) for v in xs]
+            if xs[0].size:
+                xc, xe = self.cm.sle_parts(xs[0], xs[1], n_harm)
+                pts = [np.concatenate([p.ravel(), v]) for p, v in zip(pts, xs)]
+                parts = [np.concatenate([parts[0], xc]), np.concatenate([parts[1], xe])]
+        pts = [np.ravel(p) for p in pts]
+        masks = self.masks(pocket, n_harm, *pts, factors, sle_parts=parts)
+        ok = np.logical_and.reduce(list(masks.values()))
+        mrr = pts[0] * pts[1] * pts[2]
+        if ok.any():
+            idx = int(np.argmax(np.where(ok, mrr, -np.inf)))
+        else:  # the point meeting most constraints, then the smallest removal rate
+            idx = int(np.argmax(sum(m.astype(int) for m in masks.values()) - mrr / mrr.max()))
+        return np.array([pts[0][idx], pts[1][idx], pts[2][idx]]), bool(ok.any()), masks
+
+    # ---- the NLP ---------------------------------------------------------------------------------
+    def harmonics(self, pocket: _Pocket) -> int:
+        """Harmonics for a pocket: the default at its lowest speed, rounded up to a short ladder so
+        that few NLPs are built (more harmonics only add accuracy)."""
+        need = self.cm.harmonics_at(pocket.rpm_lo)
+        return int(next((h for h in _HARMONIC_LADDER if h >= need), need))
+
+    def nlp(self, n_harm: int) -> _NLP:
+        """The pocket NLP with ``n_harm`` harmonics, built once; the pocket is a set of parameters.
+
+        Scaled variables ``rpm / 1e4``, ``ap / 1 mm``, ``fz / 0.1 mm``; parameters: the pocket's
+        speed interval, the Chebyshev coefficients of its limit depth (zero-padded) and the
+        back-off factor of each process constraint. Objective: ``-MRR`` scaled to order one.
+        """
+        if n_harm in self._nlps:
+            return self._nlps[n_harm]
+        b, s = self.b, self.settings
+        sle_fn = self.cm.sle_function(n_harm)
+        opti = ca.Opti()
+        xn, xa, xf = opti.variable(), opti.variable(), opti.variable()
+        rpm_lo, rpm_hi = opti.parameter(), opti.parameter()
+        coef = opti.parameter(_MAX_COEFFS)
+        fac = opti.parameter(len(_PROCESS))
+        factor = dict(zip(_PROCESS, ca.vertsplit(fac)))
+        rpm, ap, fz = RPM_SCALE * xn, DEPTH_SCALE * xa, FEED_SCALE * xf
+        opti.subject_to(opti.bounded(rpm_lo / RPM_SCALE, xn, rpm_hi / RPM_SCALE))
+        opti.subject_to(opti.bounded(b.ap[0] / DEPTH_SCALE, xa, b.ap[1] / DEPTH_SCALE))
+        if self.fixed_feed:
+            opti.subject_to(xf == b.fz[0] / FEED_SCALE)
+        else:
+            opti.subject_to(opti.bounded(b.fz[0] / FEED_SCALE, xf, b.fz[1] / FEED_SCALE))
+        x_cheb = (2.0 * rpm - (rpm_lo + rpm_hi)) / (rpm_hi - rpm_lo)
+        limit = _cheb_eval(ca.vertsplit(coef), x_cheb)
+        opti.subject_to(xa <= factor["stability"] * b.margin * limit / DEPTH_SCALE)
+        if b.sle is not None:
+            s_c, s_e = sle_fn(rpm, ap)
+            opti.subject_to(opti.bounded(-1.0, (fz * s_c + s_e) / (factor["surface_error"] * b.sle), 1.0))
+        for name in ("force", "torque"):
+            if name in self.boundary:
+                opti.subject_to(xa <= factor[name] * self.boundary_depth(name, fz) / DEPTH_SCALE)
+        if b.power is not None:
+            opti.subject_to(self.cm.power(rpm, ap, fz) / (factor["power"] * b.power) <= 1.0)
+        scale = (b.rpm[1] / RPM_SCALE) * (b.ap[1] / DEPTH_SCALE) * (b.fz[1] / FEED_SCALE)
+        opti.minimize(-xn * xa * xf / scale)
+        # mu_init: every solve starts from the best point of a seed grid, close to an optimum
+        opti.solver("ipopt", {"print_time": False, "expand": True},
+                    {"print_level": 0, "sb": "yes", "max_iter": s.max_iter, "mu_init": 1e-3})
+        nlp = _NLP(opti, (xn, xa, xf), (rpm_lo, rpm_hi, coef, fac), sle_fn)
+        self._nlps[n_harm] = nlp
+        return nlp
+
+    def surrogate_ok(self, pocket, n_harm, x, factors, rtol=1e-6) -> bool:
+        """Whether ``x`` meets the pocket's constraints (as the NLP sees them) to ``rtol``."""
+        m = self.masks(pocket, n_harm, np.array([x[0]]), np.array([x[1] * (1 - rtol)]), np.array([x[2]]),
+                       {k: v * (1 + rtol) for k, v in factors.items()})
+        return all(bool(v.all()) for v in m.values())
+
+    def solve_pocket(self, pocket: _Pocket, factors):
+        """Seed grid, then IPOPT from its best point. Returns (seed, answer, feasible, status, masks)."""
+        n_harm = self.harmonics(pocket)
+        nlp = self.nlp(n_harm)
+        seed, seed_ok, masks = self.seed(pocket, n_harm, factors)
+        opti, (xn, xa, xf) = nlp.opti, nlp.x
+        p_lo, p_hi, p_coef, p_fac = nlp.p
+        opti.set_value(p_lo, pocket.rpm_lo)
+        opti.set_value(p_hi, pocket.rpm_hi)
+        opti.set_value(p_coef, np.pad(pocket.coeffs, (0, _MAX_COEFFS - pocket.coeffs.size)))
+        opti.set_value(p_fac, [factors[k] for k in _PROCESS])
+        start = seed
+        for _ in range(2):  # a second solve from the last iterate when IPOPT stops short
+            opti.set_initial(xn, start[0] / RPM_SCALE)
+            opti.set_initial(xa, start[1] / DEPTH_SCALE)
+            opti.set_initial(xf, start[2] / FEED_SCALE)
+            try:
+                sol = opti.solve()
+                x = np.array([sol.value(xn) * RPM_SCALE, sol.value(xa) * DEPTH_SCALE, sol.value(xf) * FEED_SCALE])
+            except RuntimeError:  # not converged: the last iterate, judged below
+                x = np.array([opti.debug.value(xn) * RPM_SCALE, opti.debug.value(xa) * DEPTH_SCALE,
+                              opti.debug.value(xf) * FEED_SCALE])
+            status = str(opti.stats().get("return_status", "unknown"))
+            if status in _CONVERGED or not np.all(np.isfinite(x)):
+                break
+            start = x
+        x = np.clip(x, [pocket.rpm_lo, self.b.ap[0], self.b.fz[0]], [pocket.rpm_hi, self.b.ap[1], self.b.fz[1]])
+        ok = bool(np.all(np.isfinite(x))) and self.surrogate_ok(pocket, n_harm, x, factors)
+        if seed_ok and (not ok or np.prod(x) < np.prod(seed)):  # never worse than the seed grid
+            x, ok = seed, True
+        return seed, x, ok, status, masks
+
+    # ---- re-check ---------------------------------------------------------------------------------
+    def ratios(self, point: OperatingPoint) -> dict[str, float]:
+        """Value / limit of every process constraint at a predicted point (> 1: violated)."""
+        b = self.b
+        limit = point.depth_limit_m
+        if self.guard is not None:
+            limit = min(limit, float(self.guard([point.spindle_rpm])[0][0]))
+        stab = point.axial_depth_m / (b.margin * limit)
+        # unstable at a depth below the limit found (SDM: several crossings; ZOA: exactly at it)
+        out = {"stability": stab if point.stable else max(stab, 1.0 + 10 * self.settings.recheck_rtol)}
+        if b.sle is not None:
+            out["surface_error"] = abs(point.surface_location_error_m) / b.sle
+        if b.force is not None:
+            out["force"] = point.peak_force_N / b.force
+        if b.torque is not None:
+            out["torque"] = point.peak_torque_N_m / b.torque
+        if b.power is not None:
+            out["power"] = point.power_W / b.power
+        return out
+
+
+def _mrr(setup, x) -> float:
+    return float(x[1] * setup.cut.radial_depth_m * x[2] * setup.tool.teeth * x[0] / 60.0)
+
+
+def _diagnose(masks_all: list[dict[str, np.ndarray]]) -> str | None:
+    """Name the constraint (or pair) that no grid point meets; None if the grid has a feasible point."""
+    names = [n for n in _PROCESS if any(n in m for m in masks_all)]
+    for n in names:
+        if not any(m[n].any() for m in masks_all if n in m):
+            return n
+    for a, c in combinations(names, 2):
+        if not any((m[a] & m[c]).any() for m in masks_all if a in m and c in m):
+            return f"{a}+{c}"
+    return None
+
+
+def _refine_sdm(prob, pockets, results, samples, sdm_limit, setup, settings: PlanSettings) -> None:
+    """Local refinement of the sampled SDM limit around the best pockets' answers (in place).
+
+    Between samples the limit is a PCHIP interpolant, cautious on the flanks of a cusp, where
+    optima sit. Each round adds the SDM limit at the answer and a quarter of the local sample
+    spacing on either side, rebuilds those pockets' series and solves them again.
+    """
+    ones = {k: 1.0 for k in _PROCESS}
+    for _ in range(settings.sdm_refine_rounds):
+        mrr = np.array([r.mrr_m3_s if r.feasible else -np.inf for r in results])
+        if not np.isfinite(mrr).any():
+            return
+        todo = np.flatnonzero(mrr >= (1.0 - settings.sdm_refine_within) * mrr.max())
+        rr, dd = samples
+        new = []
+        for i in todo:
+            n = results[i].solution[0]
+            j = np.searchsorted(rr, n)
+            gap = rr[min(j, rr.size - 1)] - rr[max(j - 1, 0)]
+            h = 0.25 * max(gap, 1e-6 * n)
+            new.append(np.clip([n - h, n, n + h], pockets[i].rpm_lo, pockets[i].rpm_hi))
+        r_new = np.setdiff1d(np.unique(np.concatenate(new)), rr)
+        if r_new.size == 0:
+            return
+        rr = np.concatenate([rr, r_new])
+        dd = np.concatenate([dd, np.where(np.isfinite(d := sdm_limit(r_new)), d, 1.0)])
+        order = np.argsort(rr)
+        samples[0], samples[1] = rr[order], dd[order]
+        pchip = PchipInterpolator(samples[0], samples[1])
+        for i in todo:
+            p = pockets[i]
+            pockets[i] = _build_pockets(np.array([p.rpm_lo, p.rpm_hi]), pchip, settings, sampled=True,
+                                        merge=False)[0]
+            seed, x, ok, status, _ = prob.solve_pocket(pockets[i], ones)
+            results[i] = replace(results[i], start=_ro(seed), solution=_ro(x),
+                                 mrr_m3_s=_mrr(setup, x) if ok else np.nan, solver_status=status, feasible=ok)
+
+
+def _guarded(diagram: LobeDiagram, guard: _SwapGuard) -> LobeDiagram:
+    """The ZOA diagram with the lobe pieces of :class:`_SwapGuard` taken into account."""
+    g_depth, g_freq = guard(np.asarray(diagram.rpm))
+    low = g_depth < np.asarray(diagram.depth_limit_m)
+    if not low.any():
+        return diagram
+    log.warning("the ZOA envelope misses lobes across an eigenvalue swap at %d of %d speeds "
+                "(%.0f-%.0f rpm); the planner uses them", low.sum(), low.size,
+                diagram.rpm[low].min(), diagram.rpm[low].max())
+    return replace(diagram, depth_limit_m=_ro(np.where(low, g_depth, diagram.depth_limit_m)),
+                   chatter_frequency_hz=_ro(np.where(low, g_freq, diagram.chatter_frequency_hz)))
+
+
+def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | None = None) -> Plan:
+    """Spindle speed, axial depth and feed per tooth with the largest removal rate.
+
+    Parameters
+    ----------
+    setup : stability.setup.Setup
+        Tool, cut (radial depth, milling, frame; the cut's feed is used when the limits give no feed
+        range), material with cutting coefficients, and limits: ``spindle_rpm`` and
+        ``axial_depth_m`` ranges are required; every other limit is optional (absent: not
+        constrained; no stability margin: 1).
+    structure : ModalModel or control.StateSpace
+        Tool-tip dynamics, machine frame (the surface-error model needs modes).
+    method : {'auto', 'zoa', 'sdm'}
+        Stability model; ``'auto'`` takes the SDM below ``settings.sdm_below_immersion`` radial
+        immersion, the ZOA otherwise.
+    settings : PlanSettings, optional
+
+    Returns
+    -------
+    Plan
+        ``success`` only when the optimum passed the re-check by
+        :func:`stability.lobes.predict_point`.
+
+    Raises
+    ------
+    SetupError
+        No cutting coefficients, or no speed or depth range in the limits.
+    ValueError
+        An unknown method, or a structure without modes (a measured FRF table).
+
+    References
+    ----------
+    Altintas & Budak, CIRP Annals 44(1), 1995 (ZOA); Insperger & Stepan, Int. J. Numer. Meth. Eng.
+    61, 2004 (SDM); Schmitz & Mann, IJMTM 46, 2006 (surface location error).
+    """
+    t0 = time.perf_counter()
+    if method not in ("auto", "zoa", "sdm"):
+        raise ValueError(f"method must be one of 'auto', 'zoa', 'sdm', found {method!r}")
+    settings = settings or PlanSettings()
+    if hasattr(structure, "freq_hz") and not hasattr(structure, "natural_frequency_hz"):
+        raise ValueError("plan needs a modal model: the surface-error model of the NLP is analytic in "
+                         "speed; fit a modal model to the measured FRF first")
+    model = as_modal_model(structure)
+    prob = _Problem(setup, model, settings)
+    tool, cut, coef, b = setup.tool, setup.cut, setup.material.cutting_coefficients, prob.b
+    if method == "auto":
+        method = "sdm" if cut.radial_depth_m / tool.diameter_m < settings.sdm_below_immersion else "zoa"
+    if method == "zoa":
+        diagram, pockets, prob.guard = _zoa_pockets(model, setup, b.rpm, settings)
+    else:
+        diagram, pockets, samples, sdm_limit = _sdm_pockets(model, setup, b.rpm, settings)
+    log.info("%d pockets (%s)", len(pockets), method)
+
+    ones = {k: 1.0 for k in _PROCESS}
+    results, masks_all = [], []
+    for p in pockets:
+        seed, x, ok, status, masks = prob.solve_pocket(p, ones)
+        masks_all.append(masks)
+        results.append(PocketResult((p.rpm_lo, p.rpm_hi), p.kind, _ro(seed), _ro(x),
+                                    _mrr(setup, x) if ok else np.nan, status, ok))
+    if method == "sdm":
+        _refine_sdm(prob, pockets, results, samples, sdm_limit, setup, settings)
+
+    def predict(x):
+        return predict_point(model, tool, replace(cut, feed_per_tooth_m=float(x[2])), coef,
+                             spindle_rpm=float(x[0]), axial_depth_m=float(x[1]), method=method,
+                             rtol=settings.sdm_rtol, n_freq=settings.n_freq)
+
+    best, point = _verify(prob, pockets, results, predict, setup, settings)
+    common = dict(method=method, stability_margin=b.margin, pockets=tuple(results), diagram=diagram,
+                  elapsed_s=time.perf_counter() - t0)
+    if best is None:
+        culprit = _diagnose(masks_all)
+        if culprit is not None:
+            msg, status = f"infeasible: {culprit.replace('+', ' and ')} cannot be met within the bounds", "infeasible"
+        else:
+            tried = [r for r in results if r.verified is False]
+            msg = (f"no answer passed the re-check ({len(tried)} pockets tried)" if tried
+                   else "the NLP found no feasible point")
+            status = "unverified" if tried else "infeasible"
+        return Plan(False, status, msg, spindle_rpm=None, axial_depth_m=None, feed_per_tooth_m=None,
+                    mrr_m3_s=None, active_constraints=(), infeasible_constraint=culprit, point=None, **common)
+    x = results[best].solution
+    if prob.guard is not None:  # report the guarded limit where the envelope misses a lobe
+        g = float(prob.guard([x[0]])[0][0])
+        if g < point.depth_limit_m:
+            point = replace(point, depth_limit_m=g, stable=bool(point.axial_depth_m < g))
+    active = _active(prob, point, x)
+    msg = (f"{x[0]:.0f} rpm, depth {x[1] * 1e3:.3g} mm, feed {x[2] * 1e3:.3g} mm/tooth: "
+           f"{_mrr(setup, x) * 1e6:.4g} cm^3/s; active: {', '.join(active) or 'none'}")
+    converged = results[best].solver_status in _CONVERGED
+    if not converged:
+        msg = f"IPOPT did not converge ({results[best].solver_status}); best verified point {msg}"
+    return Plan(converged, "optimal" if converged else "not_converged", msg, spindle_rpm=float(x[0]),
+                axial_depth_m=float(x[1]), feed_per_tooth_m=float(x[2]), mrr_m3_s=_mrr(setup, x),
+                active_constraints=active, infeasible_constraint=None, point=point, **common)
+
+
+def _zoa_pockets(model, setup, rpm_range, settings: PlanSettings):
+    """ZOA: the diagram (lobe gaps filled by the guard), the pockets and the guard."""
+    tool, cut, coef = setup.tool, setup.cut, setup.material.cutting_coefficients
+    lo, hi = rpm_range
+    curves = zoa.limit_curves(model, tool, cut, coef, zoa.default_chatter_frequencies(model, n_freq=settings.n_freq))
+    guard = _SwapGuard(curves, lo, hi)
+    diagram = _guarded(lobe_diagram(model, tool, cut, coef, rpm_range=rpm_range, n_rpm=settings.n_rpm_zoa,
+                                    n_freq=settings.n_freq), guard)
+
+    def envelope(r):
+        """Depth limit and chatter frequency, the smaller of the envelope and the guard."""
+        u, inv = np.unique(np.asarray(r, dtype=float), return_inverse=True)
+        env = zoa.envelope(model, tool, cut, coef, u, curves=curves)
+        keep = ~np.asarray(env.is_intersection)
+        depth, freq = np.asarray(env.depth_limit_m)[keep][inv], np.asarray(env.chatter_frequency_hz)[keep][inv]
+        g_depth, g_freq = guard(r)
+        low = g_depth < depth
+        return np.where(low, g_depth, depth), np.where(low, g_freq, freq)
+
+    breaks = _pocket_breaks_zoa(diagram, lo, hi, lambda r: envelope(r)[1])
+    return diagram, _build_pockets(breaks, lambda r: envelope(r)[0], settings, sampled=False), guard
+
+
+def _sdm_pockets(model, setup, rpm_range, settings: PlanSettings):
+    """SDM: the diagram, the pockets, the samples (speeds, limits) and the limit function."""
+    tool, cut, coef = setup.tool, setup.cut, setup.material.cutting_coefficients
+    diagram = lobe_diagram(model, tool, cut, coef, rpm_range=rpm_range, n_rpm=settings.n_rpm_sdm, method="sdm",
+                           rtol=settings.sdm_rtol)
+    res = diagram.resolution
+
+    def sdm_limit(r):
+        """SDM limits at more speeds, at the diagram's resolution (no new convergence test)."""
+        u, inv = np.unique(np.asarray(r, dtype=float), return_inverse=True)
+        more = lobe_diagram(model, tool, cut, coef, rpm_range=(u[0], u[-1] + 1.0), rpm=u, method="sdm",
+                            rtol=settings.sdm_rtol, steps_per_mode_period=res.steps_per_mode_period,
+                            min_steps=res.min_steps)
+        return np.asarray(more.depth_limit_m)[inv]
+
+    rr, dd, breaks = _sdm_samples(diagram, sdm_limit, *rpm_range, settings.sdm_cusp_iterations)
+    pockets = _build_pockets(breaks, PchipInterpolator(rr, dd), settings, sampled=True)
+    return diagram, pockets, [rr, dd], sdm_limit
+
+
+def _verify(prob: _Problem, pockets, results, predict, setup, settings: PlanSettings):
+    """Re-check the pocket answers with ``predict`` (best first, in place) until the best verified
+    one beats every answer not yet checked; a violated constraint is tightened in that pocket by
+    the measured ratio and the pocket solved again. Returns (index or None, OperatingPoint)."""
+    factors = [{k: 1.0 for k in _PROCESS} for _ in pockets]
+    best, best_point = None, None
+    tol = 1.0 + settings.recheck_rtol
+    while True:
+        open_ = [i for i, r in enumerate(results) if r.feasible and r.verified is None]
+        if not open_:
+            break
+        i = max(open_, key=lambda k: results[k].mrr_m3_s)
+        if best is not None and results[i].mrr_m3_s <= results[best].mrr_m3_s:
+            break
+        r = results[i]
+        for attempt in range(settings.max_backoffs + 1):
+            point = predict(r.solution)
+            bad = {k: v for k, v in prob.ratios(point).items() if not v <= tol}
+            if not bad:
+                results[i] = replace(r, verified=True, backoffs=attempt)
+                if best is None or results[i].mrr_m3_s > results[best].mrr_m3_s:
+                    best, best_point = i, point
+                break
+            if attempt == settings.max_backoffs:
+                results[i] = replace(r, verified=False, backoffs=attempt)
+                break
+            for k, v in bad.items():
+                factors[i][k] *= (1.0 - settings.backoff_slack) / v
+            log.info("pocket %.0f-%.0f rpm: re-check violated %s; re-solving", *r.rpm_range, sorted(bad))
+            _, x, ok, status, _ = prob.solve_pocket(pockets[i], factors[i])
+            r = replace(r, solution=_ro(x), mrr_m3_s=_mrr(setup, x) if ok else np.nan, solver_status=status,
+                        feasible=ok)
+            if not ok:
+                results[i] = replace(r, verified=False, backoffs=attempt + 1)
+                break
+    return best, best_point
+
+
+# Relative distance to a limit within which a constraint is reported active: the back-off leaves a
+# re-checked constraint up to ~max_backoffs * backoff_slack below its limit.
+_ACTIVE_RTOL = 5e-3
+# Relative distance to a bound within which it is active (IPOPT stops within ~1e-8 of a bound).
+_BOUND_RTOL = 1e-6
+
+
+def _active(prob: _Problem, point: OperatingPoint, x) -> tuple[str, ...]:
+    """Constraints within ``_ACTIVE_RTOL`` of their limit by the re-check, bounds within
+    ``_BOUND_RTOL``, in the order of :data:`CONSTRAINTS`."""
+    b = prob.b
+    active = {k for k, v in prob.ratios(point).items() if v >= 1.0 - _ACTIVE_RTOL}
+    for name, value, (low, high) in (("rpm", x[0], b.rpm), ("depth", x[1], b.ap), ("feed", x[2], b.fz)):
+        if high <= low:  # a fixed value (no range given) is no active choice
+            continue
+        if value <= low * (1 + _BOUND_RTOL):
+            active.add(f"{name}_min")
+        if value >= high * (1 - _BOUND_RTOL):
+            active.add(f"{name}_max")
+    return tuple(c for c in CONSTRAINTS if c in active)
