@@ -204,6 +204,32 @@ def _cmd_check(args) -> int:
     return EXIT_OK if result.ok else EXIT_NEGATIVE
 
 
+def _cmd_plan(args) -> int:
+    from oma.modal_io import read_modal_model
+    from planner.optimize import plan
+    from stability.setup_io import read_setup
+
+    setup = read_setup(args.setup)
+    model = read_modal_model(args.model)
+    result = plan(setup, model, method=args.method)
+    if args.output:
+        fig, _ = result.plot()
+        _save_figure(fig, args.output)
+    payload = result.to_dict()
+
+    def human(p):
+        if not p["success"]:
+            return f"no plan ({result.status}): {result.message}"
+        return (f"{p['spindle_rpm']:.0f} rpm, axial depth {1e3 * p['axial_depth_m']:.2f} mm, feed "
+                f"{1e3 * p['feed_per_tooth_m']:.3f} mm/tooth: MRR {1e6 * p['mrr_m3_s']:.2f} cm^3/s; active: "
+                + (", ".join(p["active_constraints"]) or "none"))
+
+    _emit(args, payload, human)
+    if result.success:
+        return EXIT_OK
+    return EXIT_NEGATIVE if result.status == "infeasible" else EXIT_INTERNAL
+
+
 def _cmd_simulate(args) -> int:
     from stability.setup_io import read_setup
     from oma.modal_io import read_modal_model
@@ -270,6 +296,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--strict", action="store_true", help="exit 1 when the excitation is insufficient")
     _add_json(p)
     p.set_defaults(handler=_cmd_identify)
+
+    p = sub.add_parser("plan", help="recommended spindle speed, depth and feed")
+    p.add_argument("setup")
+    p.add_argument("--model", required=True)
+    p.add_argument("--method", choices=["auto", "zoa", "sdm"], default="auto",
+                   help="stability limit: auto = SDM below ae/D 0.2 (flip lobes), else ZOA")
+    p.add_argument("-o", "--output", default=None, help="figure of the lobes with the optimum")
+    _add_json(p)
+    p.set_defaults(handler=_cmd_plan)
 
     p = sub.add_parser("check", help="check a planned toolpath point by point")
     p.add_argument("toolpath")

@@ -102,3 +102,18 @@ def test_check_flags_the_examples_deep_stretch_and_exits_1(capsys):
     assert kinds <= {"chatter", "surface_error", "force", "power", "pose_out_of_range"}
     for v in payload["violations"]:
         assert {"index", "kind", "value", "limit"} <= set(v)
+
+
+def test_plan_reports_a_verified_optimum(capsys):
+    code, out, err = _run(capsys, "plan", str(EXAMPLE / "setup.yaml"), "--model",
+                          str(EXAMPLE / "models" / "planning_model.yaml"), "--json")
+    assert code == 0, err
+    p = json.loads(out)
+    assert p["success"] is True
+    assert p["mrr_m3_s"] == pytest.approx(
+        p["axial_depth_m"] * 0.006 * p["feed_per_tooth_m"] * 2 * p["spindle_rpm"] / 60.0, rel=1e-9)
+    # re-check the answer independently with predict at the recommended point
+    code, out, _ = _run(capsys, "predict", str(EXAMPLE / "setup.yaml"), "--model",
+                        str(EXAMPLE / "models" / "planning_model.yaml"), "--rpm", str(p["spindle_rpm"]),
+                        "--depth", str(p["axial_depth_m"]), "--json")
+    assert json.loads(out)["stable"] is True
