@@ -33,12 +33,13 @@ How the work is shared (results are those of :func:`stability.lobes.predict_poin
   exact values (one evaluation per distinct pose and direction).
 * Distinct modal models (after rounding) x cut frames x radial engagement x milling mode form a
   *structure group*. Its two ZOA eigenvalue branches are computed once on the chatter-frequency grid
-  of :func:`stability.zoa.default_chatter_frequencies`; every spindle speed of the group is then
-  solved on that grid exactly as :func:`stability.zoa.envelope` solves one speed (candidate lobe
-  intervals, the same 1.25 preselection, a bracketed Illinois solve of the phase condition), in a
-  loop compiled by numba (numpy over 10^4 frequencies costs about 5 ms per group, the compiled loop
-  about 1.2 ms of CPU). The grid does not depend on the speed, so a path at many speeds on one pose
-  costs one grid and a cheap solve per speed.
+  of :func:`stability.zoa.default_chatter_frequencies` and continued in frequency (each follows one
+  eigenvalue through the swaps of their order, :meth:`stability.zoa.ZOACurves.continued`); every
+  spindle speed of the group is then solved on that grid exactly as :func:`stability.zoa.envelope`
+  solves one speed (candidate lobe intervals, the same 1.25 preselection, a bracketed Illinois solve
+  of the phase condition), in a loop compiled by numba (numpy over 10^4 frequencies costs about
+  5 ms per group, the compiled loop about 1.2 ms of CPU). The grid does not depend on the speed,
+  so a path at many speeds on one pose costs one grid and a cheap solve per speed.
 * The nearest stable speed at a chatter point is exact on the same grid: the unstable speeds at the
   planned depth are the images, under every lobe's speed map ``n_k(f) = 60 f / (N (eps / 2 pi + k))``,
   of the frequency runs where a branch's critical depth is below the allowed one (run ends solved
@@ -103,8 +104,9 @@ _SDM_GRID, _SDM_BISECT = 200, 12
 
 
 # =================================================================================== the kernel
-# Plain Python functions compiled by numba on first use (see _kernel). Branch order, the candidate
-# rule and the Illinois iteration are those of stability.zoa, so the limits equal predict_point's.
+# Plain Python functions compiled by numba on first use (see _kernel). The continued eigenvalue
+# branches, the candidate rule and the Illinois iteration are those of stability.zoa, so the limits
+# equal predict_point's.
 def _k_lam(f, fn, zeta, stiff, w, wres):
     """Eigenvalues of ``G_or(f) B0`` (2 x 2), the larger real part first.
 
@@ -145,18 +147,24 @@ def _k_depth_phase(lam):
     return depth, math.pi + 2.0 * math.atan2(lam.imag, lam.real)
 
 
-def _k_branch(f, b, fn, zeta, stiff, w, wres):
+def _k_branch(f, b, f0, f1, g0, g1, fn, zeta, stiff, w, wres):
+    """Eigenvalue of continued branch ``b`` at ``f`` in the grid interval ``[f0, f1]`` (as
+    ``stability.zoa._Problem.branch``): the root whose ``lambda_0 - lambda_1`` points along the
+    gap interpolated between the interval's continued gaps ``g0``, ``g1``."""
     l1, l2 = _k_lam(f, fn, zeta, stiff, w, wres)
-    return l1 if b == 0 else l2
+    t = (f - f0) / (f1 - f0) if f1 != f0 else 0.0
+    ref = g0 + t * (g1 - g0)
+    first = (ref.conjugate() * (l1 - l2)).real >= 0.0  # the sorted first root continues branch 0
+    return l1 if first == (b == 0) else l2
 
 
-def _k_solve(b, k, rpm, teeth, f_lo, f_hi, fn, zeta, stiff, w, wres):
-    """Chatter frequency of lobe ``k`` of branch ``b`` at ``rpm`` in ``[f_lo, f_hi]`` (Illinois, as
-    ``stability.zoa._solve_freq``); returns (depth, frequency, residual)."""
+def _k_solve(b, k, rpm, teeth, f_lo, f_hi, g_lo, g_hi, fn, zeta, stiff, w, wres):
+    """Chatter frequency of lobe ``k`` of continued branch ``b`` at ``rpm`` in ``[f_lo, f_hi]``
+    (Illinois, as ``stability.zoa._solve_freq``); returns (depth, frequency, residual)."""
     x = 60.0 / (teeth * rpm)
-    d, p = _k_depth_phase(_k_branch(f_lo, b, fn, zeta, stiff, w, wres))
+    d, p = _k_depth_phase(_k_branch(f_lo, b, f_lo, f_hi, g_lo, g_hi, fn, zeta, stiff, w, wres))
     a, fa = f_lo, p / _TWO_PI + k - x * f_lo
-    d, p = _k_depth_phase(_k_branch(f_hi, b, fn, zeta, stiff, w, wres))
+    d, p = _k_depth_phase(_k_branch(f_hi, b, f_lo, f_hi, g_lo, g_hi, fn, zeta, stiff, w, wres))
     c_hi, fb = f_hi, p / _TWO_PI + k - x * f_hi
     side = 0
     for _ in range(80):
@@ -164,7 +172,7 @@ def _k_solve(b, k, rpm, teeth, f_lo, f_hi, fn, zeta, stiff, w, wres):
         c = (a * fb - c_hi * fa) / denom if denom != 0.0 else 0.5 * (a + c_hi)
         if not (c >= min(a, c_hi) and c <= max(a, c_hi)):
             c = 0.5 * (a + c_hi)
-        d, p = _k_depth_phase(_k_branch(c, b, fn, zeta, stiff, w, wres))
+        d, p = _k_depth_phase(_k_branch(c, b, f_lo, f_hi, g_lo, g_hi, fn, zeta, stiff, w, wres))
         fc = p / _TWO_PI + k - x * c
         right = fc * fb > 0.0
         left = (not right) and fc * fa > 0.0
@@ -184,14 +192,15 @@ def _k_solve(b, k, rpm, teeth, f_lo, f_hi, fn, zeta, stiff, w, wres):
         if abs(c_hi - a) <= 4e-15 * abs(c_hi):
             break
     f = a if abs(fa) < abs(fb) else c_hi
-    d, p = _k_depth_phase(_k_branch(f, b, fn, zeta, stiff, w, wres))
+    d, p = _k_depth_phase(_k_branch(f, b, f_lo, f_hi, g_lo, g_hi, fn, zeta, stiff, w, wres))
     return d, f, p / _TWO_PI + k - x * f
 
 
-def _k_limit(rpm, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres):
-    """ZOA limit depth and chatter frequency at one speed from the sampled branches (as
+def _k_limit(rpm, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
+    """ZOA limit depth and chatter frequency at one speed from the sampled continued branches (as
     ``stability.zoa._lowest_lobe``). ``valid[b, i]``: interval ``i`` of branch ``b`` can hold a lobe
-    (finite depth at both ends, no eigenvalue-ordering swap); ``pha`` is the phase over 2 pi."""
+    (finite depth at both ends); ``pha`` is the phase over 2 pi; ``gap`` the continued
+    ``lambda_0 - lambda_1`` at the grid frequencies."""
     nf = freq.shape[0]
     xs = 60.0 / teeth
     inv = xs / rpm
@@ -233,21 +242,23 @@ def _k_limit(rpm, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres):
     for j in range(n_cand):
         if cand[j, 3] <= _PRESELECT * best:
             b, k, i = int(cand[j, 0]), int(cand[j, 1]), int(cand[j, 2])
-            d, f, res = _k_solve(b, k, rpm, teeth, freq[i], freq[i + 1], fn, zeta, stiff, w, wres)
+            d, f, res = _k_solve(b, k, rpm, teeth, freq[i], freq[i + 1], gap[i], gap[i + 1], fn, zeta, stiff, w,
+                                 wres)
             if d < np.inf and abs(res) < 1e-8 and d < out_d:
                 out_d, out_f = d, f
     return out_d, out_f
 
 
-def _k_crossing(b, target, f_a, f_b, fn, zeta, stiff, w, wres):
-    """Frequency in ``[f_a, f_b]`` where ``Re lambda_b = target`` (bisection; the real part of each
-    branch, max or min of the two, is continuous)."""
-    ga = _k_branch(f_a, b, fn, zeta, stiff, w, wres).real - target
+def _k_crossing(b, target, f_a, f_b, g_a, g_b, fn, zeta, stiff, w, wres):
+    """Frequency in the grid interval ``[f_a, f_b]`` (continued gaps ``g_a``, ``g_b``) where
+    ``Re lambda_b = target`` (bisection; the real part of a continued branch is continuous)."""
+    f0, f1 = f_a, f_b
+    ga = _k_branch(f_a, b, f0, f1, g_a, g_b, fn, zeta, stiff, w, wres).real - target
     for _ in range(200):
         mid = 0.5 * (f_a + f_b)
         if mid <= f_a or mid >= f_b:
             break
-        gm = _k_branch(mid, b, fn, zeta, stiff, w, wres).real - target
+        gm = _k_branch(mid, b, f0, f1, g_a, g_b, fn, zeta, stiff, w, wres).real - target
         if (gm > 0.0) == (ga > 0.0):
             f_a, ga = mid, gm
         else:
@@ -255,11 +266,11 @@ def _k_crossing(b, target, f_a, f_b, fn, zeta, stiff, w, wres):
     return 0.5 * (f_a + f_b)
 
 
-def _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres):
+def _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
     """Speed intervals in which some lobe lies below depth ``thr``: the images, under every lobe's
-    speed map ``n_k(f) = 60 f / (N (eps(f) / 2 pi + k))``, of the frequency runs where a branch's
-    critical depth is below ``thr`` (on the intervals the ZOA solve uses: finite ends, no phase
-    jump). Returns (starts, ends), arrays."""
+    speed map ``n_k(f) = 60 f / (N (eps(f) / 2 pi + k))``, of the frequency runs where a continued
+    branch's critical depth is below ``thr`` (on the intervals the ZOA solve uses: finite ends).
+    Returns (starts, ends), arrays."""
     nf = freq.shape[0]
     xs = 60.0 / teeth
     starts = np.empty(256)
@@ -290,9 +301,10 @@ def _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, s
                 n_run += 1
                 continue
             if piece == 2:
-                fc = _k_crossing(b, target, freq[i], freq[i + 1], fn, zeta, stiff, w, wres)
+                fc = _k_crossing(b, target, freq[i], freq[i + 1], gap[i], gap[i + 1], fn, zeta, stiff, w, wres)
                 run_f[n_run] = fc
-                run_p[n_run] = _k_depth_phase(_k_branch(fc, b, fn, zeta, stiff, w, wres))[1] / _TWO_PI
+                lam = _k_branch(fc, b, freq[i], freq[i + 1], gap[i], gap[i + 1], fn, zeta, stiff, w, wres)
+                run_p[n_run] = _k_depth_phase(lam)[1] / _TWO_PI
                 n_run += 1
             if n_run > 0:  # the run ends here: emit its image under every lobe
                 kmin, kmax = np.inf, -np.inf
@@ -314,15 +326,16 @@ def _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, s
                         n_int += 1
                 n_run = 0
             if piece == 3:
-                fc = _k_crossing(b, target, freq[i], freq[i + 1], fn, zeta, stiff, w, wres)
+                fc = _k_crossing(b, target, freq[i], freq[i + 1], gap[i], gap[i + 1], fn, zeta, stiff, w, wres)
                 run_f[0] = fc
-                run_p[0] = _k_depth_phase(_k_branch(fc, b, fn, zeta, stiff, w, wres))[1] / _TWO_PI
+                lam = _k_branch(fc, b, freq[i], freq[i + 1], gap[i], gap[i + 1], fn, zeta, stiff, w, wres)
+                run_p[0] = _k_depth_phase(lam)[1] / _TWO_PI
                 run_f[1], run_p[1] = freq[i + 1], pha[b, i + 1]
                 n_run = 2
     return starts[:n_int], ends[:n_int]
 
 
-def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres):
+def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
     """Speed nearest to ``rpm0`` in ``[lo, hi]`` whose ZOA limit is at least ``thr`` (NaN: none).
 
     The candidates are the ends of the connected unstable speed set around ``rpm0``; each is moved
@@ -332,9 +345,9 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff,
     nearer.
     """
     p = min(max(rpm0, lo), hi)
-    if p != rpm0 and _k_limit(p, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+    if p != rpm0 and _k_limit(p, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)[0] >= thr:
         return p
-    starts, ends = _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)
+    starts, ends = _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)
     left, right = p, p
     for _ in range(200):
         changed = True
@@ -353,7 +366,7 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff,
             step = 1e-9
             while step <= 1.01e-4:
                 c = min(right * (1.0 + step), hi)
-                if _k_limit(c, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+                if _k_limit(c, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)[0] >= thr:
                     found_r = c
                     break
                 reach_r = c
@@ -362,7 +375,7 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff,
             step = 1e-9
             while step <= 1.01e-4:
                 c = max(left * (1.0 - step), lo)
-                if _k_limit(c, teeth, freq, dep, pha, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+                if _k_limit(c, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)[0] >= thr:
                     found_l = c
                     break
                 reach_l = c
@@ -386,11 +399,13 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, valid, fn, zeta, stiff,
 def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q_thr, q_lo, q_hi, q_near,
             out_depth, out_freq, out_near):
     """For every structure group: sample both branches on the log frequency grid of
-    ``stability.zoa.default_chatter_frequencies``, then answer its queries (limit at a speed and,
-    where flagged and unstable, the nearest stable speed)."""
+    ``stability.zoa.default_chatter_frequencies``, continued in frequency as in
+    ``stability.zoa.ZOACurves.continued``, then answer its queries (limit at a speed and, where
+    flagged and unstable, the nearest stable speed)."""
     freq = np.empty(n_freq)
     dep = np.empty((2, n_freq))
     pha = np.empty((2, n_freq))
+    gap = np.empty(n_freq, dtype=np.complex128)
     valid = np.empty((2, n_freq - 1), dtype=np.bool_)
     for g in range(fn.shape[0]):
         fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
@@ -399,8 +414,19 @@ def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q
         for i in range(n_freq):
             freq[i] = math.exp(i * step + a)
         freq[0], freq[n_freq - 1] = f_lo[g], f_hi[g]
+        swapped = False
+        prev = 0j
         for i in range(n_freq):
             l1, l2 = _k_lam(freq[i], fn_g, zeta_g, stiff_g, w_g, wres_g)
+            # continue the branches: the sorted gap l1 - l2 turning by more than 90 degrees from
+            # the previous frequency's means the sorted order has swapped (stability.zoa's rule)
+            d12 = l1 - l2
+            if i > 0 and (prev.conjugate() * d12).real < 0.0:
+                swapped = not swapped
+            prev = d12
+            if swapped:
+                l1, l2 = l2, l1
+            gap[i] = l1 - l2
             # the phase is used only where the depth is finite (atan2 is a fifth of the cost)
             dep[0, i], pha[0, i] = np.inf, np.nan
             dep[1, i], pha[1, i] = np.inf, np.nan
@@ -412,15 +438,14 @@ def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q
                 dep[1, i], pha[1, i] = d, p / _TWO_PI
         for b in range(2):
             for i in range(n_freq - 1):
-                valid[b, i] = (dep[b, i] < np.inf and dep[b, i + 1] < np.inf
-                               and abs(pha[b, i + 1] - pha[b, i]) * _TWO_PI < 0.5 * math.pi)
+                valid[b, i] = dep[b, i] < np.inf and dep[b, i + 1] < np.inf
         for q in range(q_ptr[g], q_ptr[g + 1]):
-            d, fc = _k_limit(q_rpm[q], teeth, freq, dep, pha, valid, fn_g, zeta_g, stiff_g, w_g, wres_g)
+            d, fc = _k_limit(q_rpm[q], teeth, freq, dep, pha, gap, valid, fn_g, zeta_g, stiff_g, w_g, wres_g)
             out_depth[q], out_freq[q] = d, fc
             out_near[q] = np.nan
             if q_near[q] and d < q_thr[q]:
-                out_near[q] = _k_nearest(q_rpm[q], q_thr[q], q_lo[q], q_hi[q], teeth, freq, dep, pha, valid, fn_g,
-                                         zeta_g, stiff_g, w_g, wres_g)
+                out_near[q] = _k_nearest(q_rpm[q], q_thr[q], q_lo[q], q_hi[q], teeth, freq, dep, pha, gap, valid,
+                                         fn_g, zeta_g, stiff_g, w_g, wres_g)
 
 
 _KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_limit", "_k_crossing",

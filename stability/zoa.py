@@ -16,6 +16,16 @@ chatter frequencies; the envelope is evaluated on an rpm grid by solving, for ev
 reaches a grid speed, for the chatter frequency at that exact speed (not by interpolating sampled
 lobes), and the points where the minimising lobe changes (the cusps between lobes) are found by a
 Newton solve for the intersection of the two lobe curves and added to the envelope.
+
+Branches. At each frequency the two eigenvalues are reported sorted (branch 0 has the larger real
+part, so ``depth_m[0]`` is the smaller critical depth there). A lobe, however, is the curve traced by
+*one* eigenvalue as the frequency changes, and where the real parts of the two cross the sorted
+order swaps: the sorted branch's depth has a kink and its phase jumps, while each eigenvalue goes on
+smoothly. The lobes are therefore traced on the *continued* branches (:meth:`ZOACurves.continued`):
+the two roots ``lambda = tr/2 +- sqrt(tr^2/4 - det)`` are told apart by the direction of
+``lambda_0 - lambda_1 = +-2 sqrt(...)``, which is kept continuous along the frequency grid (the
+sign that turns it by less than 90 degrees between neighbouring frequencies) and, between grid
+frequencies, interpolated linearly to pick the root at any frequency the solvers ask for.
 """
 
 from __future__ import annotations
@@ -68,16 +78,58 @@ class ZOACurves:
     phase_rad : ndarray, shape (2, n_freq)
         ``eps`` in (0, 2 pi): the phase between inner and outer modulation is ``eps + 2 pi k``.
     teeth : int
+    eigenvalue : ndarray of complex, shape (2, n_freq)
+        The eigenvalues ``lambda`` of ``G(w) B0``, 1/m, in the order of ``depth_m``.
+    continued_row : ndarray of int, shape (n_freq,)
+        Row of ``depth_m``/``phase_rad``/``eigenvalue`` that holds, at each frequency, the
+        eigenvalue continued smoothly in frequency from branch 0 at the lowest frequency (the other
+        row continues branch 1); see :meth:`continued`.
+
+    Notes
+    -----
+    Rows 0 and 1 are sorted at every frequency (row 0 has the larger ``Re lambda``, so the smaller
+    critical depth): ``depth_m.min(axis=0) == depth_m[0]``. A lobe follows one eigenvalue, which
+    moves from one sorted row to the other wherever the two real parts cross; the lobes are the
+    curves of :meth:`continued` (the frequency grid is taken in increasing order).
     """
 
     freq_hz: np.ndarray
     depth_m: np.ndarray
     phase_rad: np.ndarray
     teeth: int
+    eigenvalue: np.ndarray
+    continued_row: np.ndarray
 
     def rpm(self, k: int) -> np.ndarray:
-        """Spindle speed of lobe ``k`` at every chatter frequency, shape (2, n_freq), rpm."""
+        """Spindle speed of lobe ``k`` at every chatter frequency, shape (2, n_freq), rpm (rows as
+        ``phase_rad``: sorted, not continued)."""
         return 60.0 * self.freq_hz / (self.teeth * (self.phase_rad / TWO_PI + k))
+
+    def continued(self) -> tuple[np.ndarray, np.ndarray]:
+        """Depth, m, and phase, rad, of the two continued branches, each shape (2, n_freq).
+
+        Branch ``c`` is one eigenvalue followed continuously in frequency, so its depth and phase
+        are continuous wherever its real part stays positive; lobe ``k`` of branch ``c`` is the
+        curve ``(60 f / (N (phase[c] / 2 pi + k)), depth[c])``.
+        """
+        rows = np.stack([self.continued_row, 1 - self.continued_row]).astype(np.intp)
+        return (np.take_along_axis(np.asarray(self.depth_m), rows, axis=0),
+                np.take_along_axis(np.asarray(self.phase_rad), rows, axis=0))
+
+
+def _continued_row(freq_hz: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Row of ``lam`` (shape (2, n), sorted per frequency) holding the continuation of branch 0.
+
+    ``lambda_0 - lambda_1`` is ``+-2 sqrt(tr^2/4 - det)``, analytic in frequency away from a double
+    eigenvalue; its sign is chosen so that it turns by less than 90 degrees between neighbouring
+    (increasing) frequencies, which is continuity as long as the grid resolves the eigenvalues.
+    """
+    order = np.argsort(freq_hz, kind="stable")
+    gap = lam[0, order] - lam[1, order]
+    flip = (np.conj(gap[:-1]) * gap[1:]).real < 0
+    row = np.empty(freq_hz.size, dtype=np.int8)
+    row[order] = np.concatenate([[0], np.cumsum(flip) % 2])
+    return row
 
 
 class _Problem:
@@ -88,6 +140,16 @@ class _Problem:
         self.structure, self.cut = structure, cut
         self.teeth = int(tool.teeth)
         self.b0 = average_directional_matrix(tool, cut, coefficients)
+        self._grid_f = self._grid_gap = None
+
+    def follow(self, curves: "ZOACurves") -> None:
+        """Take the continued branches of ``curves``: at any frequency, branch ``c`` is then the
+        root whose ``lambda_0 - lambda_1`` points along the gap interpolated from the grid."""
+        order = np.argsort(curves.freq_hz, kind="stable")
+        lam = np.asarray(curves.eigenvalue)[:, order]
+        sign = 1 - 2 * np.asarray(curves.continued_row, dtype=float)[order]
+        self._grid_f = np.asarray(curves.freq_hz, dtype=float)[order]
+        self._grid_gap = (lam[0] - lam[1]) * sign
 
     def eigenvalues(self, freq_hz) -> np.ndarray:
         """Eigenvalues of ``G(w) B0``, shape (2, n), branch 0 with the larger real part."""
@@ -112,10 +174,15 @@ class _Problem:
         phase = np.pi + 2.0 * np.arctan2(lam.imag, lam.real)
         return depth, phase
 
-    def branch(self, b, freq_hz):
-        """Depth and phase of branch ``b`` (array, one per frequency) at ``freq_hz``."""
-        lam = self.eigenvalues(freq_hz)
-        lam = np.where(np.asarray(b) == 0, lam[0], lam[1])
+    def branch(self, c, freq_hz):
+        """Depth and phase of continued branch ``c`` (array, one per frequency) at ``freq_hz``
+        (call :meth:`follow` first)."""
+        f = np.asarray(freq_hz, dtype=float)
+        lam = self.eigenvalues(f)
+        gap = self._grid_gap
+        ref = np.interp(f, self._grid_f, gap.real) + 1j * np.interp(f, self._grid_f, gap.imag)
+        sorted_first = (np.conj(ref) * (lam[0] - lam[1])).real >= 0  # row 0 continues branch 0
+        lam = np.where(sorted_first == (np.asarray(c) == 0), lam[0], lam[1])
         return self.depth_phase(lam)
 
 
@@ -134,12 +201,18 @@ def limit_curves(structure, tool: Tool, cut: Cut, coefficients: CuttingCoefficie
     tool, cut, coefficients
         The cut (engagement, teeth, frame) and the force model (``Ktc``, ``Krc``, ``Kac``).
     freq_hz : array_like, shape (n_freq,)
-        Chatter frequencies, Hz.
+        Chatter frequencies, Hz, fine enough to resolve the eigenvalues (the branches are
+        continued from one frequency to the next in increasing order).
+
+    Returns
+    -------
+    ZOACurves
     """
     f = np.asarray(freq_hz, dtype=float).ravel()
     prob = _Problem(structure, tool, cut, coefficients)
-    depth, phase = prob.depth_phase(prob.eigenvalues(f))
-    return ZOACurves(_ro(f), _ro(depth), _ro(phase), prob.teeth)
+    lam = prob.eigenvalues(f)
+    depth, phase = prob.depth_phase(lam)
+    return ZOACurves(_ro(f), _ro(depth), _ro(phase), prob.teeth, _ro(lam), _ro(_continued_row(f, lam)))
 
 
 @dataclass(frozen=True)
@@ -181,6 +254,9 @@ def _lobe_range(curves: ZOACurves, rpm_lo: float, rpm_hi: float) -> tuple[int, i
 def lobe_segments(curves: ZOACurves, rpm_lo: float, rpm_hi: float, *, max_depth_m: float = np.inf):
     """Every lobe inside a speed window, as sampled on the chatter-frequency grid, for plotting.
 
+    The lobes are those of the continued branches (:meth:`ZOACurves.continued`), so a lobe runs on
+    through a frequency where the two eigenvalues' real parts cross.
+
     Returns
     -------
     rpm, depth_m : ndarray, shape (n_pts,)
@@ -188,12 +264,16 @@ def lobe_segments(curves: ZOACurves, rpm_lo: float, rpm_hi: float, *, max_depth_
         outside ``[rpm_lo, rpm_hi]`` are left out (the curve is split there).
     """
     k_lo, k_hi = _lobe_range(curves, rpm_lo, rpm_hi)
+    order = np.argsort(curves.freq_hz, kind="stable")
+    f = np.asarray(curves.freq_hz)[order]
+    depth, phase = (a[:, order] for a in curves.continued())
     seg_r, seg_d = [], []
-    for b in range(2):
-        d = curves.depth_m[b]
-        jump = np.abs(np.diff(curves.phase_rad[b])) >= np.pi / 2  # eigenvalue-ordering swap
+    for c in range(2):
+        d = depth[c]
+        # a phase step this large between grid frequencies is not resolved: do not draw across it
+        jump = np.abs(np.diff(phase[c])) >= np.pi / 2
         for k in range(k_lo, k_hi + 1):
-            r = curves.rpm(k)[b]
+            r = 60.0 * f / (curves.teeth * (phase[c] / TWO_PI + k))
             keep = np.isfinite(d) & (d <= max_depth_m) & (r >= rpm_lo) & (r <= rpm_hi)
             idx = np.flatnonzero(keep)
             if idx.size < 2:
@@ -248,7 +328,11 @@ def _solve_freq(prob: _Problem, branch, k, rpm, f_lo, f_hi, *, iters=80):
 
 
 def _newton_intersection(prob, b1, k1, f1, b2, k2, f2, *, iters=30):
-    """Solve ``rpm_1(f1) = rpm_2(f2)`` and ``depth_1(f1) = depth_2(f2)`` by Newton (vectorised)."""
+    """Solve ``rpm_1(f1) = rpm_2(f2)`` and ``depth_1(f1) = depth_2(f2)`` by Newton (vectorised).
+
+    Returns the speed, depth and both chatter frequencies at the intersection, and whether it
+    converged.
+    """
     n_t = prob.teeth
 
     def curve(b, k, f):
@@ -281,28 +365,36 @@ def _newton_intersection(prob, b1, k1, f1, b2, k2, f2, *, iters=30):
     r2, d2 = curve(b2, k2, f2)
     with np.errstate(invalid="ignore"):  # a branch may leave its finite range (inf - inf): not ok
         ok &= (np.abs(r1 - r2) <= 1e-9 * r1) & (np.abs(d1 - d2) <= 1e-9 * np.abs(d1))
-    return r1, d1, f1, ok
+    return r1, d1, f1, f2, ok
+
+
+def _lobe_speed(freq_hz, phase_rad, teeth, k):
+    return 60.0 * freq_hz / (teeth * (phase_rad / TWO_PI + k))
 
 
 def _lowest_lobe(prob: _Problem, curves: ZOACurves, rpm: np.ndarray, k_lo: int, k_hi: int):
-    """Exact lowest lobe at each speed of ``rpm`` (sorted): depth, chatter frequency, lobe k, branch.
+    """Exact lowest lobe at each speed of ``rpm`` (sorted).
 
-    Every (branch, lobe, frequency interval) whose speed range covers a target speed is a
+    Every (continued branch, lobe, frequency interval) whose speed range covers a target speed is a
     candidate; the linear interpolation preselects those within ``_PRESELECT_FACTOR`` of the
     sampled minimum, and each is solved for the exact chatter frequency at the exact speed.
+
+    Returns depth, chatter frequency, lobe ``k``, branch and grid interval (index into
+    ``curves.freq_hz``) of the minimising lobe at each speed (inf, NaN, -1, -1, -1 where none).
     """
     f = curves.freq_hz
+    depth_c, phase_c = curves.continued()
     cand = {"b": [], "k": [], "i": [], "j": [], "d": []}
     for b in range(2):
-        d = curves.depth_m[b]
+        d = depth_c[b]
         valid = np.isfinite(d)
+        # continued branches have a continuous phase, so every interval with finite ends is a
+        # candidate (a phase step the grid does not resolve fails the residual test of the solve)
         iv = np.flatnonzero(valid[:-1] & valid[1:])
-        # an interval over which the branch's phase jumps (eigenvalue ordering swap) is no lobe
-        iv = iv[np.abs(curves.phase_rad[b][iv + 1] - curves.phase_rad[b][iv]) < np.pi / 2]
         if iv.size == 0:
             continue
         for k in range(k_lo, k_hi + 1):
-            x = curves.rpm(k)[b]
+            x = _lobe_speed(f, phase_c[b], prob.teeth, k)
             x0, x1 = x[iv], x[iv + 1]
             j0 = np.searchsorted(rpm, np.minimum(x0, x1), side="left")
             cnt = np.searchsorted(rpm, np.maximum(x0, x1), side="right") - j0
@@ -320,9 +412,9 @@ def _lowest_lobe(prob: _Problem, curves: ZOACurves, rpm: np.ndarray, k_lo: int, 
             cand["d"].append(d[ii] + t * (d[ii + 1] - d[ii]))
     n = rpm.size
     out_d, out_f = np.full(n, np.inf), np.full(n, np.nan)
-    out_k, out_b = np.full(n, -1), np.full(n, -1)
+    out_k, out_b, out_i = np.full(n, -1), np.full(n, -1), np.full(n, -1)
     if not cand["b"]:
-        return out_d, out_f, out_k, out_b
+        return out_d, out_f, out_k, out_b, out_i
     cb, ck, ci, cj, cd = (np.concatenate(cand[key]) for key in ("b", "k", "i", "j", "d"))
     best = np.full(n, np.inf)
     np.minimum.at(best, cj, cd)
@@ -330,13 +422,43 @@ def _lowest_lobe(prob: _Problem, curves: ZOACurves, rpm: np.ndarray, k_lo: int, 
     cb, ck, ci, cj = cb[keep], ck[keep], ci[keep], cj[keep]
     fr, depth, res = _solve_freq(prob, cb, ck, rpm[cj], f[ci], f[ci + 1])
     good = np.isfinite(depth) & (np.abs(res) < 1e-8)
-    cb, ck, cj, fr, depth = cb[good], ck[good], cj[good], fr[good], depth[good]
+    cb, ck, ci, cj, fr, depth = cb[good], ck[good], ci[good], cj[good], fr[good], depth[good]
     order = np.lexsort((depth, cj))
     first = np.ones(order.size, dtype=bool)
     first[1:] = cj[order][1:] != cj[order][:-1]
     sel = order[first]
-    out_d[cj[sel]], out_f[cj[sel]], out_k[cj[sel]], out_b[cj[sel]] = depth[sel], fr[sel], ck[sel], cb[sel]
-    return out_d, out_f, out_k, out_b
+    j = cj[sel]
+    out_d[j], out_f[j], out_k[j], out_b[j], out_i[j] = depth[sel], fr[sel], ck[sel], cb[sel], ci[sel]
+    return out_d, out_f, out_k, out_b, out_i
+
+
+def _lobe_piece(curves: ZOACurves, b: np.ndarray, k: np.ndarray, i: np.ndarray) -> np.ndarray:
+    """Which monotone piece of its lobe each point (branch ``b``, lobe ``k``, grid interval ``i``) is on.
+
+    A piece is a run of grid intervals with finite depth at both ends over which the lobe's speed
+    ``60 f / (N (eps / 2 pi + k))`` keeps increasing (or decreasing) with frequency: over its speed
+    range the piece is one smooth curve ``depth(rpm)``. Two speeds whose lowest lobe is on different
+    pieces of the same lobe (two modes' lobes with the same ``k`` on one branch, or the two sides of
+    a fold) have an intersection of the two pieces between them. Returns an id, comparable only
+    between points with the same ``b`` and ``k`` (-1 where ``i < 0``).
+    """
+    out = np.full(i.shape, -1)
+    ok = i >= 0
+    if not ok.any():
+        return out
+    depth_c, phase_c = curves.continued()
+    for bb, kk in np.unique(np.stack([b[ok], k[ok]], axis=1), axis=0):
+        x = _lobe_speed(curves.freq_hz, phase_c[bb], curves.teeth, kk)
+        finite = np.isfinite(depth_c[bb])
+        valid = finite[:-1] & finite[1:]
+        with np.errstate(invalid="ignore"):
+            up = np.diff(x) > 0
+        starts = ~valid
+        starts[1:] |= ~valid[:-1] | (up[1:] != up[:-1])
+        run = np.cumsum(starts)
+        sel = ok & (b == bb) & (k == kk)
+        out[sel] = run[i[sel]]
+    return out
 
 
 # A cusp is accepted when no other lobe is lower there than the two that cross, to this tolerance.
@@ -344,6 +466,9 @@ _CUSP_RTOL = 1e-9
 # Refinement levels of the cusp search: an interval whose minimising lobes cross somewhere above
 # the envelope (a third lobe lower in between) is split there and searched again.
 _CUSP_LEVELS = 4
+# Two pieces of one lobe intersect at two distinct chatter frequencies; a Newton solution closer
+# than this (relative) is the trivial one (both at the same point of the curve), not a crossing.
+_SAME_POINT_RTOL = 1e-6
 
 
 def envelope(structure, tool: Tool, cut: Cut, coefficients: CuttingCoefficients, rpm,
@@ -369,11 +494,13 @@ def envelope(structure, tool: Tool, cut: Cut, coefficients: CuttingCoefficients,
 
     Notes
     -----
-    Between two grid speeds whose lowest lobes differ, the two lobe curves are intersected
-    (Newton on ``rpm_1(f_1) = rpm_2(f_2)``, ``depth_1(f_1) = depth_2(f_2)``); the point is a cusp
-    of the envelope when no third lobe is lower there. Otherwise the interval is split at that
-    speed and searched again (up to 4 levels): where lobes are much narrower than the grid
-    spacing some cusps are left out, but every returned value is exact.
+    The lobes are those of the continued eigenvalue branches (:meth:`ZOACurves.continued`). Between
+    two grid speeds whose lowest lobes differ (another branch, another ``k``, or another monotone
+    piece of the same lobe, such as a robot mode's lobe 0 and a tool mode's lobe 0), the two lobe
+    curves are intersected (Newton on ``rpm_1(f_1) = rpm_2(f_2)``, ``depth_1(f_1) = depth_2(f_2)``);
+    the point is a cusp of the envelope when no third lobe is lower there. Otherwise the interval
+    is split at that speed and searched again (up to 4 levels): where lobes are much narrower than
+    the grid spacing some cusps are left out, but every returned value is exact.
     """
     rpm = np.asarray(rpm, dtype=float).ravel()
     if rpm.size == 0 or np.any(rpm <= 0) or np.any(np.diff(rpm) <= 0):
@@ -382,32 +509,37 @@ def envelope(structure, tool: Tool, cut: Cut, coefficients: CuttingCoefficients,
     if curves is None:
         f = default_chatter_frequencies(structure, n_freq=n_freq) if freq_hz is None else freq_hz
         curves = limit_curves(structure, tool, cut, coefficients, f)
+    prob.follow(curves)
     k_lo, k_hi = _lobe_range(curves, rpm[0], rpm[-1])
-    d, fr, k, b = _lowest_lobe(prob, curves, rpm, k_lo, k_hi)
+    d, fr, k, b, iv = _lowest_lobe(prob, curves, rpm, k_lo, k_hi)
     # working set: grid points (kind 0), cusps (1), helper points that split intervals (2)
-    pts = [rpm, d, fr, k, b, np.zeros(rpm.size, dtype=int)]
+    pts = [rpm, d, fr, k, b, _lobe_piece(curves, b, k, iv), np.zeros(rpm.size, dtype=int)]
     for _ in range(_CUSP_LEVELS):
         order = np.argsort(pts[0], kind="stable")
-        r, d, fr, k, b, kind = (a[order] for a in pts)
-        sw = np.flatnonzero(np.isfinite(d[:-1]) & np.isfinite(d[1:]) & ((k[:-1] != k[1:]) | (b[:-1] != b[1:]))
+        r, d, fr, k, b, piece, kind = (a[order] for a in pts)
+        change = (k[:-1] != k[1:]) | (b[:-1] != b[1:]) | (piece[:-1] != piece[1:])
+        sw = np.flatnonzero(np.isfinite(d[:-1]) & np.isfinite(d[1:]) & change
                             & (kind[:-1] != 1) & (kind[1:] != 1))
         if sw.size == 0:
             break
-        rx, dx, _, ok = _newton_intersection(prob, b[sw], k[sw], fr[sw].copy(), b[sw + 1], k[sw + 1],
-                                             fr[sw + 1].copy())
+        rx, dx, f1, f2, ok = _newton_intersection(prob, b[sw], k[sw], fr[sw].copy(), b[sw + 1], k[sw + 1],
+                                                  fr[sw + 1].copy())
         ok &= (rx > r[sw]) & (rx < r[sw + 1])
+        same_lobe = (b[sw] == b[sw + 1]) & (k[sw] == k[sw + 1])
+        ok &= ~same_lobe | (np.abs(f1 - f2) > _SAME_POINT_RTOL * f1)
         if not ok.any():
             break
         rx, dx = rx[ok], dx[ok]
         uniq = np.unique(rx)
-        ed, ef, ek, eb = _lowest_lobe(prob, curves, uniq, k_lo, k_hi)
+        ed, ef, ek, eb, ei = _lowest_lobe(prob, curves, uniq, k_lo, k_hi)
         at = np.searchsorted(uniq, rx)
         cusp = ed[at] >= dx * (1 - _CUSP_RTOL)
         new_kind = np.where(cusp, 1, 2)
-        add = (rx, np.where(cusp, dx, ed[at]), ef[at], ek[at], eb[at], new_kind)
-        pts = [np.concatenate([p_, a_]) for p_, a_ in zip((r, d, fr, k, b, kind), add)]
+        add = (rx, np.where(cusp, dx, ed[at]), ef[at], ek[at], eb[at], _lobe_piece(curves, eb, ek, ei)[at],
+               new_kind)
+        pts = [np.concatenate([p_, a_]) for p_, a_ in zip((r, d, fr, k, b, piece, kind), add)]
     order = np.argsort(pts[0], kind="stable")
-    r, d, fr, k, b, kind = (a[order] for a in pts)
+    r, d, fr, k, kind = (pts[i][order] for i in (0, 1, 2, 3, 6))
     out = kind != 2
     return ZOAEnvelope(
         rpm=_ro(r[out]), depth_limit_m=_ro(d[out]), chatter_frequency_hz=_ro(fr[out]),

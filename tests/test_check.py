@@ -315,6 +315,33 @@ def test_nearest_stable_speed_on_oblique_modes_beats_a_dense_speed_grid(seed, mi
         assert not np.any(stable & (np.abs(env.rpm - rpm0) < abs(best - rpm0) * (1 - 1e-9)))
 
 
+def test_lowest_lobe_across_an_eigenvalue_order_swap_is_kept():
+    """The compiled kernel repeats stability.zoa's lowest-lobe search, and had its bug: across an
+    eigenvalue-order swap of the example's 720/735 Hz tool (3 flutes, ae/D = 0.1) it skipped lobe 1
+    (6.0 mm) at 9934-9941 rpm, gave 49.9 mm there and offered 9934.95 rpm as a stable speed for a
+    6.5 mm cut at 9930 rpm. Limits equal predict_point's; the nearest stable speed is stable and
+    no stable speed of a dense grid (exact limits) is closer."""
+    model = read_modal_model(EXAMPLE / "models" / "tool_mode.yaml")
+    tool = Tool(3, 0.016, np.deg2rad(45.0))
+    coef = CuttingCoefficients(7.96e8, 1.68e8, 2.22e8, 2.77e4, 3.08e4, 1.8e3)
+    rpm, depth, lo, hi = np.array([9930.0, 9937.0, 9941.0]), 0.0065, 9000.0, 11000.0
+    path = replace(line_path(3, tool=tool, coef=coef, ae=0.0016, depth=depth), spindle_rpm=rpm)
+    result = check_one(path, model, limits=Limits(spindle_rpm=(lo, hi)))
+    cut = cut_at(path, 0)
+    for i, r in enumerate(rpm):
+        op = predict_point(model, tool, cut, coef, spindle_rpm=r, axial_depth_m=depth)
+        assert result.depth_limit_m[i] == pytest.approx(op.depth_limit_m, rel=LIMIT_RTOL)
+        assert abs(result.chatter_frequency_hz[i] - 749.0) < 1.0  # lobe 1 of the tool mode
+    assert result.flagged("chatter").all()
+    for r, best in zip(rpm, result.nearest_stable_rpm):
+        assert lo <= best <= hi
+        assert predict_point(model, tool, cut, coef, spindle_rpm=best, axial_depth_m=depth).stable
+        for side in (+1, -1):
+            grid = r + side * np.linspace(0.0, abs(best - r) * (1 - 1e-7), 1500)
+            grid = np.sort(grid[(grid >= lo) & (grid <= hi)])
+            assert np.all(zoa.envelope(model, tool, cut, coef, grid).depth_limit_m < depth)
+
+
 def test_progress_goes_to_standard_error(capsys):
     result = check_one(line_path(3, rpm=lobe_bottom_rpm(2)), one_dof(), progress=True)
     captured = capsys.readouterr()

@@ -2,10 +2,14 @@
 
 Ground truth: the 1-DOF characteristic equation solved independently (scipy brentq on
 ``Im[(1 - e^{-i w T}) G] = 0``), the closed-form minimum of the real part of a 1-DOF receptance,
-and the published milling example of Altintas (Manufacturing Automation, 2nd ed.).
+the published milling example of Altintas (Manufacturing Automation, 2nd ed.); for two-branch
+(oblique, several-mode) structures, the characteristic equation solved at a fixed speed without
+any eigenvalue ordering (:func:`reference_limit`), lobe points sampled densely from unordered
+``numpy.linalg.eigvals``, and the semi-discretization (an independent time-domain method).
 """
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +18,11 @@ from scipy.optimize import brentq
 from oma.cutting import Cut, CuttingCoefficients, Tool
 from oma.frf_table import FRFTable
 from oma.modal import ModalModel
+from oma.modal_io import read_modal_model
 from stability import zoa
 from stability.lobes import lobe_diagram, predict_point
+from stability.oriented import average_directional_matrix, oriented_receptance
+from stability.setup_io import read_setup
 
 # The issue's accuracy for the 1-DOF closed form.
 CLOSED_FORM_RTOL = 1e-9
@@ -216,3 +223,166 @@ def test_bad_input_is_rejected():
         lobe_diagram(one_dof(), TOOL, slot_cut(), COEF, rpm_range=(1000, 2000), process_damping_N_m=1e4)
     with pytest.raises(TypeError, match="ModalModel or an FRFTable"):
         zoa.default_chatter_frequencies(object())
+
+
+# ------------------------------------------------------------- two eigenvalue branches: swaps, cusps
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "kr500_acetal"
+# The planner engineer's reproduction: the example's 720/735 Hz tool, 3 flutes, 45 deg helix,
+# ae/D = 0.1 down milling in aluminium (Altintas's coefficients).
+ALU_TOOL = Tool(3, 0.016, np.deg2rad(45.0))
+ALU_COEF = CuttingCoefficients(7.96e8, 1.68e8, 2.22e8, 2.77e4, 3.08e4, 1.8e3)
+LOW_IMMERSION = Cut(1e-4, 0.0016, "down", feed_direction=[1, 0, 0], normal_direction=[0, 1, 0])
+# Three oblique modes (with axial components) whose eigenvalue order swaps under low lobes: the
+# envelope that skipped the swap intervals was up to 2.2x too high at 15 of the speeds below.
+OBLIQUE = ModalModel([624.0, 782.0, 713.0], [0.027, 0.018, 0.028], [1.3e7, 1.85e7, 1.2e7],
+                     [[-0.98, 0.18, 0.09], [-0.04, 1.0, 0.15], [-1.0, 0.07, -0.45]])
+
+# reference_limit and the envelope solve the same equation to ~1e-14 in frequency by different
+# routes (bisection on a product of imaginary parts, Illinois on the phase): measured 1e-13.
+REFERENCE_RTOL = 1e-9
+# The ZOA against the SDM on this tool at ae/D = 0.1: measured 0.5 % at 9937 rpm (test_plan.py
+# quotes up to ~20 % between the two methods on this tool elsewhere; 49.9 mm was 8x off).
+ZOA_SDM_RTOL = 0.05
+
+
+@pytest.fixture(scope="module")
+def tool_mode():
+    return read_modal_model(EXAMPLE / "models" / "tool_mode.yaml")
+
+
+def _plane_eigenvalues(structure, tool, cut, coef, f):
+    """Unordered eigenvalues of ``G_or(f) B0``, shape (n, 2), by LAPACK."""
+    b0 = average_directional_matrix(tool, cut, coef)
+    return np.linalg.eigvals(np.einsum("ijk,jl->kil", oriented_receptance(structure, cut, f), b0))
+
+
+def reference_limit(structure, tool, cut, coef, rpm, *, n_freq=100_000):
+    """ZOA limits at the speeds ``rpm`` without eigenvalues ordered or followed.
+
+    ``det(I - a (1 - e^{-iwT}) G B0) = 0`` has the two roots ``a_j = 1 / ((1 - e^{-iwT}) lambda_j)``;
+    a real root is a critical depth. ``Im(a_1) Im(a_2)`` does not depend on which eigenvalue is
+    called 1, so its sign changes on a dense log grid (the default ZOA range, 10x denser) are
+    bisected and the smallest positive real root is the limit.
+    """
+    fn = structure.natural_frequency_hz
+    f = np.geomspace(fn.min() / 3, fn.max() * 3, n_freq)
+    lam_grid = _plane_eigenvalues(structure, tool, cut, coef, f)
+    out = []
+    for n in np.atleast_1d(rpm):
+        period = 60.0 / (tool.teeth * n)
+
+        def roots(ff, lam):
+            a = 1.0 / ((1.0 - np.exp(-2j * np.pi * ff * period))[:, None] * lam)
+            return a.imag.prod(axis=1), a
+
+        g, _ = roots(f, lam_grid)
+        i = np.flatnonzero(np.sign(g[:-1]) * np.sign(g[1:]) < 0)
+        lo, hi, g_lo = f[i], f[i + 1], g[i]
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            g_mid, _ = roots(mid, _plane_eigenvalues(structure, tool, cut, coef, mid))
+            same = np.sign(g_mid) == np.sign(g_lo)
+            lo, g_lo, hi = np.where(same, mid, lo), np.where(same, g_mid, g_lo), np.where(same, hi, mid)
+        mid = 0.5 * (lo + hi)
+        _, a = roots(mid, _plane_eigenvalues(structure, tool, cut, coef, mid))
+        a = a[np.arange(a.shape[0]), np.argmin(np.abs(a.imag) / np.abs(a), axis=1)]
+        real = (np.abs(a.imag) <= 1e-6 * np.abs(a)) & (a.real > 0)  # not a pole of a (e^{-iwT} = 1)
+        out.append(a.real[real].min())
+    return np.array(out)
+
+
+def test_continued_branches_are_smooth_where_the_sorted_ones_swap(tool_mode):
+    c = zoa.limit_curves(tool_mode, ALU_TOOL, LOW_IMMERSION, ALU_COEF, zoa.default_chatter_frequencies(tool_mode))
+    finite = np.isfinite(c.depth_m[:, :-1]) & np.isfinite(c.depth_m[:, 1:])
+    # premise: the sorted branches swap (a phase step of ~pi) where both depths are finite
+    assert np.any(finite & (np.abs(np.diff(c.phase_rad, axis=1)) >= np.pi / 2))
+    depth, phase = c.continued()
+    finite = np.isfinite(depth[:, :-1]) & np.isfinite(depth[:, 1:])
+    # the continued ones change by little between grid frequencies (the largest step of the phase
+    # on this 10^4-point grid, at the steepest point of a 2 % damped mode, is ~0.02 rad)
+    assert np.max(np.abs(np.diff(phase, axis=1))[finite]) < 0.1
+    # and are the same two eigenvalues, which are those of LAPACK
+    assert np.array_equal(np.sort(depth, axis=0), np.sort(c.depth_m, axis=0))
+    lapack = _plane_eigenvalues(tool_mode, ALU_TOOL, LOW_IMMERSION, ALU_COEF, c.freq_hz).T
+    lapack = np.where(np.abs(lapack[0] - c.eigenvalue[0]) < np.abs(lapack[1] - c.eigenvalue[0]), lapack,
+                      lapack[::-1])
+    assert np.allclose(lapack, c.eigenvalue, rtol=1e-10, atol=1e-12 * np.abs(c.eigenvalue).max())
+    assert np.all(np.diff(c.eigenvalue.real, axis=0) <= 0)  # rows stay sorted: row 0 the larger Re
+
+
+def test_lowest_lobe_survives_an_eigenvalue_order_swap(tool_mode):
+    """The reproduction: at 9934-9941 rpm the envelope gave 49.9 mm (a higher lobe) and called a
+    20 mm cut stable; lobe 1 at 749 Hz gives 6.0 mm, and the SDM agrees (spectral radius 2.2)."""
+    args = (tool_mode, ALU_TOOL, LOW_IMMERSION, ALU_COEF)
+    z = predict_point(*args, spindle_rpm=9937.0, axial_depth_m=0.02, method="zoa")
+    s = predict_point(*args, spindle_rpm=9937.0, axial_depth_m=0.02, method="sdm")
+    assert not s.stable and s.spectral_radius > 1.5
+    assert not z.stable
+    assert z.depth_limit_m == pytest.approx(s.depth_limit_m, rel=ZOA_SDM_RTOL)
+    assert z.depth_limit_m == pytest.approx(reference_limit(*args, 9937.0)[0], rel=REFERENCE_RTOL)
+    assert abs(z.chatter_frequency_hz - 749.0) < 1.0
+    # across the old gap the limit follows lobe 1 smoothly: 0.1 rpm steps change it by < 1e-3
+    env = zoa.envelope(*args, np.arange(9925.0, 9950.0, 0.1))
+    assert np.all(env.lobe == 1) and not env.is_intersection.any()
+    assert np.max(np.abs(np.diff(np.log(env.depth_limit_m)))) < 1e-3
+    # the plotted lobes run through the gap too
+    r, d = zoa.lobe_segments(zoa.limit_curves(*args, zoa.default_chatter_frequencies(tool_mode)), 9900.0, 9980.0)
+    across = (r[:-1] <= 9937.0) & (r[1:] >= 9937.0) & (np.abs(d[:-1] / z.depth_limit_m - 1) < 0.01)
+    assert across.any()
+
+
+@pytest.mark.parametrize("name, rpm_range", [("tool_mode", (8000.0, 12000.0)), ("oblique", (6000.0, 20000.0))])
+def test_envelope_is_never_above_a_densely_sampled_lobe_point(name, rpm_range, tool_mode):
+    """Every lobe point ``(60 f / (N (eps / 2 pi + k)), 1 / (2 Re lambda))`` of either eigenvalue
+    (LAPACK, unordered) at 5x the grid density is a critical point, so the envelope at its speed
+    (evaluated there exactly) is at most its depth. Points more than 5 % above the envelope at the
+    neighbouring grid speeds cannot be the lowest there and are not evaluated."""
+    model = tool_mode if name == "tool_mode" else OBLIQUE
+    lo, hi = rpm_range
+    fn = model.natural_frequency_hz
+    f = np.geomspace(fn.min() / 3, fn.max() * 3, 50_000)
+    lam = _plane_eigenvalues(model, ALU_TOOL, LOW_IMMERSION, ALU_COEF, f).T.ravel()
+    ff = np.tile(f, 2)[lam.real > 0]
+    lam = lam[lam.real > 0]
+    eps_turns = (np.pi + 2 * np.arctan2(lam.imag, lam.real)) / (2 * np.pi)
+    k = np.arange(int(np.ceil(60 * ff.max() / (ALU_TOOL.teeth * lo))) + 1)
+    r = 60 * ff[:, None] / (ALU_TOOL.teeth * (eps_turns[:, None] + k))
+    d = np.broadcast_to(0.5 / lam.real[:, None], r.shape)
+    inside = (r >= lo) & (r <= hi)
+    r, d = r[inside], d[inside]
+    grid = np.linspace(lo, hi, 2000)
+    env = zoa.envelope(model, ALU_TOOL, LOW_IMMERSION, ALU_COEF, grid)
+    on_grid = env.depth_limit_m[~env.is_intersection]
+    j = np.clip(np.searchsorted(grid, r), 1, grid.size - 1)
+    near = d <= 1.05 * np.maximum(on_grid[j - 1], on_grid[j])
+    speeds, inv = np.unique(r[near], return_inverse=True)
+    assert speeds.size > 2000
+    at = zoa.envelope(model, ALU_TOOL, LOW_IMMERSION, ALU_COEF, speeds)
+    assert np.all(at.depth_limit_m[~at.is_intersection][inv] <= d[near] * (1 + REFERENCE_RTOL))
+
+
+def test_lobes_with_the_same_number_from_two_modes_meet_in_a_cusp():
+    """The example cell: the robot's 24.8 Hz mode and the 715 Hz tool mode both have a lobe 0
+    near 21.7 krpm. Where the lowest lobe changes from one to the other the envelope marks the
+    crossing, a local maximum of the exact limit; no change of lobe goes unmarked."""
+    model = read_modal_model(EXAMPLE / "models" / "planning_model.yaml")
+    setup = read_setup(EXAMPLE / "setup.yaml")
+    args = (model, setup.tool, setup.cut, setup.material.cutting_coefficients)
+    env = zoa.envelope(*args, np.linspace(500.0, 24000.0, 2000))
+    grid = np.flatnonzero(~env.is_intersection)
+    f = env.chatter_frequency_hz
+    # along one lobe the chatter frequency changes by < 1 % between these grid speeds
+    change = grid[:-1][np.abs(np.log(f[grid[1:]] / f[grid[:-1]])) > np.log(1.05)]
+    nxt = grid[np.searchsorted(grid, change) + 1]
+    marked = np.array([env.is_intersection[a:b].any() for a, b in zip(change, nxt)])
+    assert change.size >= 5 and marked.all()
+    robot_tool = [(a, b) for a, b in zip(change, nxt) if env.rpm[a] > 21_000 and min(f[a], f[b]) < 30 < max(f[a], f[b])]
+    assert len(robot_tool) == 1
+    a, b = robot_tool[0]
+    assert env.lobe[a] == env.lobe[b] == 0
+    c = a + np.flatnonzero(env.is_intersection[a:b])[0]
+    rpm_c, depth_c = env.rpm[c], env.depth_limit_m[c]
+    assert 21_700 < rpm_c < 21_730
+    left, at, right = reference_limit(*args, rpm_c * np.array([1 - 1e-6, 1.0, 1 + 1e-6]))
+    assert at == pytest.approx(depth_c, rel=REFERENCE_RTOL)
+    assert left < depth_c and right < depth_c
