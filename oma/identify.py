@@ -1,0 +1,450 @@
+"""OMA pipeline: the robot's tool-tip modal model from milling records, and whether to trust it.
+
+Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
+
+1. Harmonics: spindle and tooth-passing lines of each record, the spindle frequency refined from the
+   force spectrum (:mod:`oma.harmonics`).
+2. Background force variance per axis from the force PSD with the harmonics removed.
+3. FRF: multiple-input H1 from pooled Welch spectra of all records, harmonic lines left out, with
+   coherence and random-error bands (:mod:`oma.frf_estimate`).
+4. Modal fit of the H1 FRF: stabilisation diagram, nonlinear least squares, BIC (:mod:`oma.fit`).
+   With ``method='h1'`` this is the answer (the paper's estimator plus a fit).
+5. ``method='default'``: time-domain fit of the modal model to the measured force and displacement,
+   started from step 4, with the exact likelihood of a quantised (tracker) displacement
+   (:mod:`oma.timefit`). No window, no leakage: it is what makes a 1.1 s cut usable.
+6. Detectability: the smallest background variance the displacement sensor can resolve through the
+   identified model, per axis (:mod:`oma.detectability`); an axis below it is flagged and the model
+   is marked untrusted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal, Sequence
+
+import numpy as np
+
+from .detectability import Detectability, detectability
+from .errors import RecordError
+from .fit import ModalFit, fit_modal_model, relative_fit_error
+from .frf_estimate import FRFEstimate, estimate_frf, frf_agreement
+from .frf_table import FRFTable
+from .harmonics import BackgroundEstimate, Harmonics, background_variance, find_harmonics, fit_harmonic_signal
+from .modal import ModalModel
+from .record import Record
+from .signals import PreparedSignals, prepare_record
+from .synthetic import simulate_response
+from .timefit import NoModeFound, TimeFit, fit_time_domain
+
+__all__ = ["Identification", "identify", "modal_mapping", "frf_agreement", "METHODS"]
+
+AXES = ("X", "Y", "Z")
+METHODS = ("default", "h1")
+#: Upper end of the default fit band, Hz: robot structural modes sit at 8-40 Hz (DOMAIN.md); pass
+#: ``band_hz`` to fit spindle or tool modes higher up.
+MAX_BAND_HZ = 100.0
+#: The default method starts from the H1 fit only when the Welch lines are at most this far apart,
+#: Hz: the half-power band 2 zeta f_n of a 5 %-damped 5 Hz mode. Coarser (short records): the
+#: time-domain fit searches for the modes itself.
+MIN_RESOLVED_BANDWIDTH_HZ = 0.5
+Method = Literal["default", "h1"]
+
+
+def _ro(a, dtype=float):
+    a = np.array(a, dtype=dtype)
+    a.setflags(write=False)
+    return a
+
+
+def _num(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def modal_mapping(model: ModalModel) -> dict[str, Any]:
+    """A :class:`ModalModel` as a ``robomill-modal/1`` mapping (plain Python types, YAML/JSON-ready)."""
+    out: dict[str, Any] = {"format": "robomill-modal/1"}
+    if model.joints_deg is not None:
+        out["pose"] = {"joints_deg": [float(v) for v in model.joints_deg]}
+    out["modes"] = [
+        {
+            "natural_frequency_hz": float(f),
+            "damping_ratio": float(z),
+            "stiffness_N_m": float(k),
+            "direction": [float(v) for v in u],
+        }
+        for f, z, k, u in zip(model.natural_frequency_hz, model.damping_ratio, model.stiffness_N_m, model.directions)
+    ]
+    out["residual_compliance_m_N"] = [[float(v) for v in row] for row in model.residual_compliance_m_N]
+    if model.source is not None:
+        out["source"] = _plain(model.source)
+    return out
+
+
+def _plain(obj):
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return _num(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+@dataclass(frozen=True)
+class Identification:
+    """What :func:`identify` found, and how far to trust it.
+
+    Attributes
+    ----------
+    model : ModalModel
+        The identified tool-tip model, with ``source`` provenance.
+    frf : FRFTable
+        The H1 estimate (receptance, with ordinary coherence), harmonic lines left out.
+    frf_fit_error : ndarray, shape (3,)
+        Relative misfit per axis (NaN for axes not measured). ``method='h1'``: the model against
+        the H1 estimate (direct entries, weighted by the inverse random error, in the fitted
+        band). Default method: the time-domain misfit of the displacement beyond the sensor's
+        rounding noise (:attr:`oma.timefit.TimeFit.fit_error`), because the H1 estimate of
+        quantised displacement is itself biased.
+    noise_variance_N2 : ndarray, shape (3,)
+        Background force variance per axis (harmonics removed, sensor noise subtracted), N^2.
+    min_noise_variance_N2 : ndarray, shape (3,)
+        Smallest background variance the displacement sensor can resolve through the model, N^2.
+    excitation_sufficient : ndarray of bool, shape (3,)
+    trusted : bool
+        Every measured axis sufficiently excited, the fit converged and its errors are acceptable.
+    harmonics : tuple of Harmonics
+        One per record.
+    warnings : tuple of str
+    method : str
+    frf_estimate : FRFEstimate
+        The estimate with its random-error bands.
+    modal_fit : ModalFit or None
+        The frequency-domain fit (the answer for ``method='h1'``, the start otherwise; None when
+        it found no mode).
+    time_fit : TimeFit or None
+    background : tuple of BackgroundEstimate
+        One per record.
+    detectability : Detectability
+    """
+
+    model: ModalModel
+    frf: FRFTable
+    frf_fit_error: np.ndarray
+    noise_variance_N2: np.ndarray
+    min_noise_variance_N2: np.ndarray
+    excitation_sufficient: np.ndarray
+    trusted: bool
+    harmonics: tuple
+    warnings: tuple
+    method: str
+    frf_estimate: FRFEstimate = field(repr=False)
+    modal_fit: ModalFit | None = field(repr=False)
+    time_fit: TimeFit | None = field(default=None, repr=False)
+    background: tuple = field(default=(), repr=False)
+    detectability: Detectability | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        for name in ("frf_fit_error", "noise_variance_N2", "min_noise_variance_N2"):
+            object.__setattr__(self, name, _ro(getattr(self, name)))
+        object.__setattr__(self, "excitation_sufficient", _ro(self.excitation_sufficient, bool))
+        object.__setattr__(self, "harmonics", tuple(self.harmonics))
+        object.__setattr__(self, "warnings", tuple(self.warnings))
+        object.__setattr__(self, "background", tuple(self.background))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``robomill identify --json`` object (cli.md): per-axis values keyed ``X``, ``Y``, ``Z``."""
+
+        def per_axis(v):
+            return {a: _num(x) for a, x in zip(AXES, v)}
+
+        return {
+            "model": modal_mapping(self.model),
+            "frf_fit_error": per_axis(self.frf_fit_error),
+            "noise_variance_N2": per_axis(self.noise_variance_N2),
+            "min_noise_variance_N2": per_axis(self.min_noise_variance_N2),
+            "excitation_sufficient": {a: bool(s) for a, s in zip(AXES, self.excitation_sufficient)},
+            "trusted": bool(self.trusted),
+            "method": self.method,
+            "harmonics": [h.to_dict() for h in self.harmonics],
+            "warnings": list(self.warnings),
+        }
+
+    # plots delegate to oma.plots (matplotlib imported there, only when called)
+    def plot_frf(self, reference=None, *, axes=None, **kwargs):
+        """Identified (model and H1 estimate) versus reference FRF, magnitude, phase and coherence."""
+        from .plots import plot_frf_comparison
+
+        return plot_frf_comparison(self, reference=reference, axes=axes, **kwargs)
+
+    def plot_force_spectrum(self, record: int = 0, *, ax=None, **kwargs):
+        """Force PSD of one record with its harmonics marked and the background level."""
+        from .plots import plot_force_spectrum
+
+        return plot_force_spectrum(self.background[record], self.harmonics[record], ax=ax, **kwargs)
+
+    def plot_detectability(self, *, ax=None, **kwargs):
+        """Peak-to-valley response versus background variance with the sensor resolution line."""
+        from .plots import plot_detectability
+
+        return plot_detectability(self.detectability, ax=ax, **kwargs)
+
+    def plot(self, reference=None, **kwargs):
+        """All three figures; returns a list of ``(fig, axes)``."""
+        return [self.plot_frf(reference, **kwargs), self.plot_force_spectrum(), self.plot_detectability()]
+
+
+def _fit_band(est: FRFEstimate, fs: float) -> tuple[float, float]:
+    """Lines worth fitting: from the first line up to 2.5 times the highest coherent line.
+
+    A line is coherent when its multiple coherence exceeds the 99 % point of the coherence of
+    unrelated signals, a Beta(q, n_d - q) variable for ``q`` inputs and ``n_d`` averages (Bendat &
+    Piersol sec. 9.3.2), at two adjacent lines.
+    """
+    from scipy import stats
+
+    f = est.freq_hz
+    mc = np.nan_to_num(est.multiple_coherence, nan=0.0)
+    q = int(np.sum(np.any(est.table.measured, axis=0)))
+    nd = max(est.n_averages, q + 1.0)
+    threshold = float(stats.beta.ppf(0.99, q, max(nd - q, 0.5)))
+    # a running median over five lines keeps out lines that are coherent by chance
+    from scipy.ndimage import median_filter
+
+    smooth = median_filter(mc, size=(1, 5), mode="nearest")
+    coherent = np.any(smooth > threshold, axis=0)
+    df = f[1] - f[0] if f.size > 1 else 1.0
+    top = f[coherent].max() if np.any(coherent) else 0.1 * fs
+    hi = min(max(2.5 * top, 8 * df), 0.45 * fs, MAX_BAND_HZ)
+    return float(f.min()), float(hi)
+
+
+def identify(
+    records: Sequence[Record],
+    *,
+    method: Method = "default",
+    nperseg: int | None = None,
+    band_hz: tuple[float, float] | None = None,
+    refine_harmonics: bool = True,
+    max_fit_error: float = 0.5,
+    n_trials: int = 100,
+    rng=0,
+) -> Identification:
+    """Identify the tool-tip modal model from one or more milling records of the same pose.
+
+    Parameters
+    ----------
+    records : sequence of Record
+        Force (N) and tool-tip displacement, velocity or acceleration, same sampling rate, same
+        pose. Each record's ``cut.window_s`` (if given) selects the fully engaged span.
+    method : {'default', 'h1'}
+        ``'h1'``: the paper's estimator (Welch H1) followed by the modal fit of :mod:`oma.fit`.
+        ``'default'``: that fit refined by the time-domain maximum-likelihood fit of
+        :mod:`oma.timefit` (much better on short cuts and on quantised displacement).
+    nperseg : int, optional
+        Welch segment length of the H1 estimate; a quarter of the shortest record by default.
+    band_hz : (float, float), optional
+        Band of the frequency-domain fit; by default from the first line to 2.5 times the highest
+        line whose multiple coherence is significant, at most :data:`MAX_BAND_HZ`.
+    refine_harmonics : bool
+        Refine each record's spindle frequency from its force spectrum.
+    max_fit_error : float
+        Largest per-axis ``frf_fit_error`` of a trusted model.
+    n_trials : int
+        Realisations in the detectability simulation.
+    rng : int or numpy.random.Generator
+        Seed of the detectability simulation (the verdict is reproducible by default).
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    ValueError
+        Unknown ``method``, no records, records with different sampling rates.
+    RecordError
+        A record without force or motion channels, or a bad cut window.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, not {method!r}")
+    records = list(records)
+    if not records:
+        raise ValueError("identify needs at least one record")
+    fs = float(records[0].sample_rate_hz)
+    for r in records[1:]:
+        if abs(r.sample_rate_hz - fs) > 1e-9 * fs:
+            raise RecordError(None, "sample_rate_hz", f"{fs} Hz like the first record", f"{r.sample_rate_hz} Hz")
+    warnings: list[str] = []
+
+    signals: list[PreparedSignals] = [prepare_record(r) for r in records]
+    harmonics: list[Harmonics | None] = []
+    backgrounds: list[BackgroundEstimate] = []
+    for r, s in zip(records, signals):
+        name = r.name or "record"
+        rpm, teeth = r.cut.spindle_rpm, r.tool.teeth
+        if rpm is None or rpm <= 0:
+            warnings.append(f"{name}: no spindle speed; milling harmonics not removed")
+            h = None
+        else:
+            h = find_harmonics(s.force_N, fs, rpm, teeth, refine=refine_harmonics)
+            shift = h.spindle_hz / h.nominal_spindle_hz - 1.0
+            if abs(shift) > 0.005:
+                warnings.append(
+                    f"{name}: spindle speed refined from the force spectrum: {rpm:.0f} rpm nominal, "
+                    f"{h.spindle_rpm:.0f} rpm found ({100 * shift:+.1f} %)"
+                )
+        harmonics.append(h)
+        noise = r.sensors.force_noise_variance_N2 if r.sensors is not None else None
+        hh = h if h is not None else Harmonics(fs, fs, 1, [], [], [])
+        backgrounds.append(background_variance(s.force_N, fs, hh, sensor_noise_variance_N2=noise))
+    durations = np.array([s.duration_s for s in signals])
+    noise_var = np.sum([b.variance_N2 * d for b, d in zip(backgrounds, durations)], axis=0) / durations.sum()
+
+    est = estimate_frf(signals, harmonics=harmonics, estimator="h1", nperseg=nperseg)
+    band = _fit_band(est, fs) if band_hz is None else (float(band_hz[0]), float(band_hz[1]))
+    names = [r.name or f"record {i}" for i, r in enumerate(records)]
+    with np.errstate(divide="ignore"):
+        weights = np.where(np.isfinite(est.std_m_N), 1.0 / est.std_m_N, 0.0)
+    df = est.freq_hz[1] - est.freq_hz[0]
+    mfit = None
+    if method == "h1" or df <= MIN_RESOLVED_BANDWIDTH_HZ:
+        try:
+            mfit = fit_modal_model(est.table, weights=weights, band_hz=band,
+                                   source={"method": "oma-h1", "records": names})
+        except ValueError as exc:  # no stable mode in the H1 estimate
+            if method == "h1":
+                raise
+            warnings.append(f"H1 modal fit failed ({exc}); modes searched in the time domain")
+    tfit = None
+    model = None if mfit is None else mfit.model
+    if method == "default":
+        start = None if mfit is None else mfit.model
+        resolved = start is not None and bool(
+            np.all(df < 2.0 * start.damping_ratio * start.natural_frequency_hz)
+        )
+        # when the Welch lines are narrower than every fitted mode's half-power band, the H1 fit
+        # has found the modes and the time-domain fit refines them; otherwise (short records)
+        # the time-domain fit searches for the modes itself
+        try:
+            tfit = fit_time_domain(
+                signals, harmonics, start if resolved else None, search=not resolved,
+                source={"method": "oma-time-domain", "records": names},
+            )
+        except NoModeFound as exc:  # no mode at all: nothing in the records but rounding noise
+            if mfit is None:
+                try:
+                    mfit = fit_modal_model(est.table, weights=weights, band_hz=band,
+                                           source={"method": "oma-h1", "records": names})
+                except ValueError:
+                    raise ValueError(f"no mode could be identified from the records ({exc}); is the "
+                                     "tool-tip displacement moving at all beyond the sensor resolution?") from exc
+            model = mfit.model
+            warnings.append(f"time-domain fit found no mode ({exc}); the H1 fit is reported")
+        if tfit is not None:
+            model = tfit.model
+            if not tfit.success:
+                warnings.append(f"time-domain fit: {tfit.message}")
+
+    # fit error: for 'h1' the model against the H1 estimate (direct entries, weighted by the
+    # inverse random error, in the fitted band); for the default the time-domain misfit beyond
+    # the rounding noise (the H1 estimate itself is biased by the rounding, see oma.timefit)
+    f = est.freq_hz
+    sel = (f >= band[0]) & (f <= band[1])
+    g = model.receptance(f[sel])
+    ferr = np.full(3, np.nan)
+    for a in range(3):
+        if est.table.measured[a, a]:
+            ferr[a] = float(relative_fit_error(est.receptance_m_N[a, a, sel], g[a, a], weights[a, a, sel]))
+    if tfit is not None:
+        ferr = np.where(np.isfinite(ferr), tfit.fit_error, np.nan)
+
+    # detectability over the shortest record
+    resolution = None
+    for r, s in zip(records, signals):
+        res = r.sensors.displacement_resolution_m if r.sensors is not None else None
+        res = res if res is not None else s.quantisation_step_m
+        if res is not None:
+            resolution = max(resolution or 0.0, float(res))
+    measured_axes = [a for a in range(3) if est.table.measured[a, a]]
+    det = detectability(model, float(durations.min()), fs, resolution, noise_var, axes=measured_axes,
+                        n_trials=n_trials, rng=rng)
+    # the same criterion on the records themselves: the model's response to the measured
+    # background force (harmonics, mean and trend removed; run in on the time-reversed force) must
+    # also reach the resolution. A model fitted to an under-excited record is itself unreliable,
+    # so the simulated (Monte-Carlo) verdict alone could be fooled by it.
+    p2v_meas = np.full(3, np.inf)
+    for s, h in zip(signals, harmonics):
+        ok = s.force_axes
+        f_bg = np.zeros_like(s.force_N)
+        hz = h.freq_hz if h is not None else np.zeros(0)
+        f_bg[ok] = s.force_N[ok] - fit_harmonic_signal(s.force_N[ok], fs, hz)
+        x = simulate_response(model, np.hstack([f_bg[:, ::-1], f_bg]), fs)[:, s.n_samples :]
+        p2v_meas = np.minimum(p2v_meas, np.ptp(x, axis=1))
+    sufficient = np.array(det.sufficient)
+    if resolution is not None:
+        for a in measured_axes:
+            if p2v_meas[a] < resolution:
+                sufficient[a] = False
+    if resolution is None:
+        warnings.append("no displacement resolution known; detectability not assessed")
+    for a in measured_axes:
+        if det.assessed[a] and not det.sufficient[a]:
+            warnings.append(
+                f"{AXES[a]}: background force variance {noise_var[a]:.1f} N^2 is below the "
+                f"{det.min_variance_N2[a]:.1f} N^2 the displacement sensor can resolve in "
+                f"{durations.min():.2f} s: the {AXES[a]} modes are not reliably identified"
+            )
+        elif resolution is not None and p2v_meas[a] < resolution:
+            warnings.append(
+                f"{AXES[a]}: the background force of the record moves the tool by only "
+                f"{1e6 * p2v_meas[a]:.1f} um peak to valley, below the {1e6 * resolution:.1f} um the "
+                f"displacement sensor can resolve: the {AXES[a]} modes are not reliably identified"
+            )
+        if np.isfinite(ferr[a]) and ferr[a] > max_fit_error:
+            warnings.append(f"{AXES[a]}: the model misses the H1 estimate by {100 * ferr[a]:.0f} % (fit error)")
+    for hz in model.natural_frequency_hz:
+        for h in harmonics:
+            if h is not None and np.any(np.abs(h.freq_hz[h.significant] - hz) < 2.0 * (f[1] - f[0])):
+                warnings.append(f"mode at {hz:.1f} Hz sits on a milling harmonic; its estimate is uncertain")
+                break
+    fit_ok = tfit.success if tfit is not None else (mfit.success and method == "h1")
+    trusted = bool(
+        fit_ok
+        and all(sufficient[a] for a in measured_axes)
+        and all(not np.isfinite(ferr[a]) or ferr[a] <= max_fit_error for a in measured_axes)
+    )
+    if not trusted:
+        warnings.append("the identified model is NOT trusted (see the warnings above)")
+    source = {
+        "method": "oma-h1" if method == "h1" else "oma-time-domain-ml",
+        "records": names,
+        "fit_error": _num(np.nanmax(ferr)) if np.any(np.isfinite(ferr)) else None,
+        "trusted": trusted,
+    }
+    joints = next((r.joints_deg for r in records if r.joints_deg is not None), None)
+    model = model.with_modes(source=source, joints_deg=joints)
+    return Identification(
+        model=model,
+        frf=est.table,
+        frf_fit_error=ferr,
+        noise_variance_N2=noise_var,
+        min_noise_variance_N2=det.min_variance_N2,
+        excitation_sufficient=sufficient,
+        trusted=trusted,
+        harmonics=tuple(harmonics),
+        warnings=tuple(warnings),
+        method=method,
+        frf_estimate=est,
+        modal_fit=mfit,
+        time_fit=tfit,
+        background=tuple(backgrounds),
+        detectability=det,
+    )

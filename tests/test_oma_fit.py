@@ -1,0 +1,112 @@
+"""Modal fit: exact recovery, noisy FRFs, model order, and the python-control round trip."""
+
+import numpy as np
+import pytest
+
+from oma.fit import fit_modal_model, fit_poles_residues, lscf_poles, stabilisation_diagram
+from oma.frf_table import FRFTable
+from oma.modal import ModalModel
+
+ALL = tuple(a + b for a in "XYZ" for b in "XYZ")
+
+
+def _oblique_model():
+    return ModalModel(
+        [10.0, 10.5, 24.8, 60.0], [0.05, 0.05, 0.04, 0.03], [2e6, 1.5e6, 3e6, 8e6],
+        [[0, 0, 1], [1, 0, 0], [0, 1, 0], [1, 1, 1]],
+        residual_compliance_m_N=np.diag([1e-8, 2e-8, 1e-8]),
+    )
+
+
+def test_exact_frf_matrix_is_recovered():
+    truth = _oblique_model()
+    f = np.arange(0.5, 120.0, 0.25)
+    fit = fit_modal_model(FRFTable.from_model(truth, f, entries=ALL))
+    m = fit.model
+    order = np.argsort(m.natural_frequency_hz)
+    # noise-free data: only the optimiser's tolerance limits the recovery
+    np.testing.assert_allclose(m.natural_frequency_hz[order], truth.natural_frequency_hz, rtol=1e-6)
+    np.testing.assert_allclose(m.damping_ratio[order], truth.damping_ratio, rtol=1e-5)
+    np.testing.assert_allclose(m.stiffness_N_m[order], [2e6, 1.5e6, 3e6, 8e6], rtol=1e-5)
+    np.testing.assert_allclose(np.abs(m.directions[order]), np.abs(truth.directions), atol=1e-6)
+    np.testing.assert_allclose(m.residual_compliance_m_N, truth.residual_compliance_m_N, atol=1e-12)
+    assert max(fit.fit_error.values()) < 1e-5
+
+
+def test_noisy_direct_frfs_within_their_error():
+    # direct entries only (a hammer test), complex Gaussian noise of 3 % of the peak, weights 1/std
+    rng = np.random.default_rng(3)
+    truth = ModalModel([10.5, 24.8], [0.05, 0.04], [1.5e6, 3e6], [[1, 0, 0], [0, 1, 0]])
+    f = np.arange(1.0, 60.0, 0.1)
+    g = truth.receptance(f)
+    sd = 0.03 * np.max(np.abs(g), axis=2, keepdims=True) * np.ones_like(np.abs(g))
+    noisy = g + sd / np.sqrt(2) * (rng.standard_normal(g.shape) + 1j * rng.standard_normal(g.shape))
+    table = FRFTable.from_entries(f, {"XX": noisy[0, 0], "YY": noisy[1, 1]})
+    w = np.zeros((3, 3, f.size))
+    w[0, 0] = w[1, 1] = 1 / sd[0, 0]
+    fit = fit_modal_model(table, weights=w)
+    m = fit.model
+    assert m.n_modes == 2  # the BIC keeps the two real modes, drops noise poles
+    np.testing.assert_allclose(m.natural_frequency_hz, [10.5, 24.8], rtol=0.005)
+    np.testing.assert_allclose(m.damping_ratio, [0.05, 0.04], rtol=0.05)
+    np.testing.assert_allclose(m.stiffness_N_m, [1.5e6, 3e6], rtol=0.03)
+
+
+def test_lscf_finds_the_poles_of_a_clean_sdof():
+    truth = ModalModel([20.0], [0.02], [1e6], [[1, 0, 0]])
+    f = np.linspace(1, 80, 400)
+    h = truth.receptance(f)[0, 0][None, :]
+    fn, z = lscf_poles(f, h, 2)
+    # the z-domain polynomial only approximates a continuous-time mode (LSCF is a starting-value
+    # estimator); the refinement by nonlinear least squares removes this
+    assert fn[0] == pytest.approx(20.0, rel=2e-3) and z[0] == pytest.approx(0.02, rel=0.05)
+    diag = stabilisation_diagram(f, h, max_order=12)
+    assert diag.natural_frequency_hz[0] == pytest.approx(20.0, rel=2e-3)
+    fit = fit_poles_residues(f, h, fn, z)
+    assert fit.natural_frequency_hz[0] == pytest.approx(20.0, rel=1e-8)
+    assert fit.damping_ratio[0] == pytest.approx(0.02, rel=1e-7)
+
+
+def test_statespace_round_trip_to_machine_precision():
+    import control
+
+    truth = _oblique_model()
+    f = np.arange(0.5, 120.0, 0.25)
+    model = fit_modal_model(FRFTable.from_model(truth, f, entries=ALL)).model
+    sys = model.to_statespace()
+    omega = 2 * np.pi * np.linspace(0.5, 150.0, 700)
+    frd = control.frd(sys, omega)
+    g_frd = np.asarray(frd.frdata)  # (3, 3, n)
+    g_ss = np.asarray(sys(1j * omega))
+    g_model = model.receptance(omega / (2 * np.pi))
+    scale = np.max(np.abs(g_model))
+    # both are the same rational function evaluated in floating point: agreement to ~1e-12
+    assert np.max(np.abs(g_frd - g_model)) / scale < 1e-12
+    assert np.max(np.abs(g_ss - g_model)) / scale < 1e-12
+    back = ModalModel.from_statespace(sys)
+    np.testing.assert_allclose(np.sort(back.natural_frequency_hz), np.sort(model.natural_frequency_hz), rtol=1e-12)
+    np.testing.assert_allclose(back.receptance(omega / (2 * np.pi)), g_model, atol=1e-12 * scale)
+
+
+def test_pole_residue_fit_with_complex_modes_and_lower_residual():
+    # accelerance-like data: residual mass below the band, non-proportional damping
+    f = np.linspace(100, 400, 600)
+    w = 2 * np.pi * f
+    wr = 2 * np.pi * np.array([150.0, 300.0])
+    z = np.array([0.01, 0.02])
+    a, b = np.array([[1.0], [0.5]]), np.array([[0.002], [-0.001]])
+    h = sum((a[r] + 1j * w * b[r]) / (wr[r] ** 2 - w**2 + 2j * z[r] * wr[r] * w) for r in range(2))
+    h = h[None, :] + 1e-7 - 3.0 / w**2
+    fit = fit_poles_residues(f, h, [152.0, 297.0], [0.015, 0.015], upper_residual=True, lower_residual=True,
+                             complex_modes=True)
+    # noise-free: limited by the optimiser's tolerances
+    np.testing.assert_allclose(fit.natural_frequency_hz, [150.0, 300.0], rtol=1e-6)
+    np.testing.assert_allclose(fit.damping_ratio, z, rtol=1e-4)
+    np.testing.assert_allclose(fit.lower_residual, [3.0], rtol=1e-4)
+    assert fit.fit_error[0] < 1e-5
+
+
+def test_empty_table_is_refused():
+    table = FRFTable(np.linspace(1, 10, 5), np.zeros((3, 3, 5)), np.zeros((3, 3), bool))
+    with pytest.raises(ValueError, match="no measured entry"):
+        fit_modal_model(table)

@@ -1,0 +1,131 @@
+"""The OMA pipeline on paper-like simulated records (robomill issue 3 targets)."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from oma.errors import RecordError
+from oma.identify import identify, modal_mapping
+from oma.synthetic import PAPER_BACKGROUND_VARIANCE_N2, paper_like_model, synthetic_record
+
+TRUTH = paper_like_model()  # X 10.5 Hz / 5 % / 1.5e6, Y 24.8 / 4 % / 3e6, Z 10.0 / 5 % / 2e6
+
+
+def dominant_errors(model):
+    """Relative errors (fn, zeta, k) of the dominant mode of each axis, shape (3, 3).
+
+    The dominant mode of axis a is the one with the largest resonant peak in G_aa,
+    u_a^2 / (k zeta).
+    """
+    out = []
+    for a in range(3):
+        peak = model.directions[:, a] ** 2 / (model.stiffness_N_m * model.damping_ratio)
+        j = int(np.argmax(peak))
+        out.append([
+            model.natural_frequency_hz[j] / TRUTH.natural_frequency_hz[a] - 1,
+            model.damping_ratio[j] / TRUTH.damping_ratio[a] - 1,
+            model.stiffness_N_m[j] / TRUTH.stiffness_N_m[a] - 1,
+        ])
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def long_runs():
+    """Default identification of two independent 20 s records (more in benchmarks/bench_oma.py)."""
+    return [identify([synthetic_record(duration_s=20.0, rng=100 + s)]) for s in range(2)]
+
+
+@pytest.fixture(scope="module")
+def short_runs():
+    """Default identification of five independent 1.1 s records (the paper's cut)."""
+    return [identify([synthetic_record(duration_s=1.1, rng=200 + s)]) for s in range(5)]
+
+
+def test_20s_records_meet_the_targets(long_runs):
+    # issue 3: 20 s records -> fn within 1 %, damping within 15 %, stiffness within 10 %
+    for idn in long_runs:
+        err = np.abs(dominant_errors(idn.model))
+        assert np.all(err[:, 0] < 0.01), err
+        assert np.all(err[:, 1] < 0.15), err
+        assert np.all(err[:, 2] < 0.10), err
+        assert idn.trusted and not any("NOT trusted" in w for w in idn.warnings)
+        assert np.all(idn.excitation_sufficient)
+        np.testing.assert_allclose(idn.noise_variance_N2, PAPER_BACKGROUND_VARIANCE_N2, rtol=0.10)
+
+
+def test_1p1s_records_meet_the_targets_as_a_median(short_runs):
+    # issue 3: 1.1 s records -> 3 %, 40 %, 25 %, as a statistic over five records (the median
+    # error per axis; the distribution over 20 records is in benchmarks/bench_oma.py)
+    err = np.abs(np.array([dominant_errors(idn.model) for idn in short_runs]))  # (seeds, axes, 3)
+    med = np.median(err, axis=0)
+    assert np.all(med < np.array([0.03, 0.40, 0.25])), med
+    # the 10.0 Hz Z and 10.5 Hz X modes are told apart (a merged pole would put one ~5 % off)
+    assert np.all(med[:, 0] < 0.02), med
+    # Y, well separated from the others, meets the targets on every record
+    assert np.all(err[:, 1] < np.array([0.03, 0.40, 0.25])), err[:, 1]
+
+
+def test_default_beats_plain_h1_on_short_records(short_runs):
+    # the paper's estimator (Welch H1 + fit) cannot resolve a 1 Hz wide mode from 1.1 s
+    recs = [synthetic_record(duration_s=1.1, rng=200 + s) for s in range(2)]
+    h1 = [np.abs(dominant_errors(identify([r], method="h1").model)) for r in recs]
+    default = [np.abs(dominant_errors(idn.model)) for idn in short_runs[:2]]
+    # Y (the well separated mode): stiffness error of the default is smaller on both records
+    assert all(d[1, 2] < h[1, 2] for d, h in zip(default, h1))
+
+
+@pytest.mark.parametrize("seed", [301])
+def test_low_background_is_flagged_not_silently_reported(seed):
+    # ten times less background force than the paper's: the tracker cannot resolve the response
+    rec = synthetic_record(duration_s=1.1, rng=seed, background_variance_N2=np.array(PAPER_BACKGROUND_VARIANCE_N2) / 10)
+    idn = identify([rec])
+    assert not idn.trusted
+    assert any("resolve" in w for w in idn.warnings) and any("NOT trusted" in w for w in idn.warnings)
+    flags = idn.to_dict()["excitation_sufficient"]
+    # Y (the paper's axis) always, and at least two axes: a model fitted to such a record can
+    # itself be too compliant on one axis and pass that axis' check (a known weakness)
+    assert flags["Y"] is False and sum(not v for v in flags.values()) >= 2
+    assert idn.model.source["trusted"] is False
+
+
+def test_wrong_rpm_is_refined_and_reported():
+    rec = synthetic_record(duration_s=1.1, rng=301, nominal_rpm=2700 * 1.02)
+    idn = identify([rec], method="h1")
+    assert idn.harmonics[0].spindle_hz == pytest.approx(45.0, rel=5e-4)
+    assert any("refined" in w for w in idn.warnings)
+    np.testing.assert_allclose(idn.noise_variance_N2, PAPER_BACKGROUND_VARIANCE_N2, rtol=0.15)
+
+
+def test_to_dict_is_the_cli_json_and_the_model_mapping_is_modal_format(long_runs):
+    d = long_runs[0].to_dict()
+    for key in ("model", "frf_fit_error", "noise_variance_N2", "min_noise_variance_N2", "excitation_sufficient",
+                "warnings"):
+        assert key in d
+    json.dumps(d)  # plain types only
+    assert d["model"]["format"] == "robomill-modal/1"
+    assert set(d["noise_variance_N2"]) == {"X", "Y", "Z"}
+    mode = d["model"]["modes"][0]
+    assert set(mode) == {"natural_frequency_hz", "damping_ratio", "stiffness_N_m", "direction"}
+    assert d["model"]["source"]["method"] == "oma-time-domain-ml"
+    assert modal_mapping(TRUTH)["modes"][1]["natural_frequency_hz"] == 24.8
+
+
+def test_two_records_of_the_same_pose_are_combined():
+    recs = [synthetic_record(duration_s=3.0, rng=400 + s) for s in range(2)]
+    idn = identify(recs)
+    assert len(idn.harmonics) == 2 and idn.frf_estimate.table.meta["records"] == 2
+    err = np.abs(dominant_errors(idn.model))
+    assert np.all(err[:2, 0] < 0.01) and np.all(err[:2, 2] < 0.10)
+
+
+def test_input_errors():
+    rec = synthetic_record(duration_s=1.1, rng=500)
+    with pytest.raises(ValueError, match="method must be one of"):
+        identify([rec], method="lscf")
+    with pytest.raises(ValueError, match="at least one record"):
+        identify([])
+    other = replace(rec, sample_rate_hz=500.0)
+    with pytest.raises(RecordError, match="sample_rate_hz"):
+        identify([rec, other])
