@@ -230,6 +230,29 @@ def _cmd_plan(args) -> int:
     return EXIT_NEGATIVE if result.status == "infeasible" else EXIT_INTERNAL
 
 
+def _cmd_diagnose(args) -> int:
+    from oma.modal_io import read_modal_model
+    from oma.record_io import read_record
+    from planner.diagnosis import diagnose
+
+    records = [read_record(path) for path in args.records]
+    model = read_modal_model(args.model)
+    result = diagnose(records, model)
+    if args.output:
+        drawn = result.plot()
+        _save_figure(drawn[0] if isinstance(drawn, tuple) else drawn, args.output)
+    payload = result.to_dict()
+
+    def human(p):
+        lines = [f"cause: {p['cause']}" + (f"  parameters: {p['parameters']}" if p["parameters"] else ""),
+                 f"validation error {p['error_before']:.3g} -> {p['error_after']:.3g} (gain {p['gain']:.2f})",
+                 "ranking: " + ", ".join(f"{r['cause']} {r['gain']:.2f}" for r in p["ranking"])]
+        return "\n".join(lines)
+
+    _emit(args, payload, human)
+    return EXIT_OK
+
+
 def _cmd_simulate(args) -> int:
     from stability.setup_io import read_setup
     from oma.modal_io import read_modal_model
@@ -313,6 +336,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default=None, help="figure of the path coloured by stability margin")
     _add_json(p)
     p.set_defaults(handler=_cmd_check)
+
+    p = sub.add_parser("diagnose", help="compare measurement with simulation, name the cause, measure the gain")
+    p.add_argument("records", nargs="+")
+    p.add_argument("--model", required=True)
+    p.add_argument("-o", "--output", default=None, help="figure: residuals, FRF with/without the extension, evidence")
+    _add_json(p)
+    p.set_defaults(handler=_cmd_diagnose)
 
     p = sub.add_parser("simulate", help="time-domain simulation of a cut, written as a record")
     p.add_argument("setup")

@@ -117,3 +117,15 @@ def test_plan_reports_a_verified_optimum(capsys):
                         str(EXAMPLE / "models" / "planning_model.yaml"), "--rpm", str(p["spindle_rpm"]),
                         "--depth", str(p["axial_depth_m"]), "--json")
     assert json.loads(out)["stable"] is True
+
+
+def test_diagnose_on_the_clean_example_names_no_cause(capsys):
+    code, out, err = _run(capsys, "diagnose", str(EXAMPLE / "records" / "cut_long"), "--model",
+                          str(EXAMPLE / "truth" / "robot_at_cut.yaml"), "--json")
+    assert code == 0, err
+    p = json.loads(out)
+    assert {"cause", "parameters", "error_before", "error_after", "gain", "ranking"} <= set(p)
+    assert p["cause"] == "none"  # simulated with exactly this model: nothing to explain
+    assert {r["cause"] for r in p["ranking"]} == {"runout", "force_sensor_dynamics", "channel_delay",
+                                                  "process_damping", "unmodeled_mode", "cross_coupling",
+                                                  "pose_drift", "nonlinear_cutting"}
