@@ -175,7 +175,7 @@ def _step_lobes(example: Example, report: Report) -> None:
     coef = setup.material.cutting_coefficients
     rpm_range = setup.limits.spindle_rpm or (500.0, 24000.0)
     zoa = lobe_diagram(model, setup.tool, setup.cut, coef, rpm_range=rpm_range, method="zoa")
-    sdm = lobe_diagram(model, setup.tool, setup.cut, coef, rpm_range=rpm_range, method="sdm", n_rpm=120)
+    sdm = lobe_diagram(model, setup.tool, setup.cut, coef, rpm_range=rpm_range, method="sdm", n_rpm=60)
     fig, ax = plot_lobes(zoa, sdm)
     paper = example.records["cut_short"].cut if "cut_short" in example.records else None
     sec = report.section("Stability lobes")
