@@ -9,9 +9,8 @@ are collected; the table gives their bias (mean) and scatter (standard deviation
 absolute error and the fraction of records inside the issue's targets (20 s: 1 %, 15 %, 10 %;
 1.1 s: 3 %, 40 %, 25 %).
 
-Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/bench_oma.py [--seeds 20] [--durations 1.1 20]``
-(single-threaded BLAS: on a loaded two-core machine OpenBLAS threads slow the small linear
-algebra of the fits down by one to two orders of magnitude).
+Run: ``python benchmarks/bench_oma.py [--seeds 20] [--durations 1.1 20]`` (about 3 minutes on
+two shared cores for 20 seeds).
 """
 
 from __future__ import annotations

@@ -33,6 +33,8 @@ G. Schwarz, "Estimating the dimension of a model", Ann. Statist. 6 (1978) 461-46
 
 from __future__ import annotations
 
+import contextlib
+import functools
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -52,6 +54,8 @@ __all__ = [
     "fit_modal_model",
     "prune_modes",
     "lstsq_normal",
+    "single_threaded_blas",
+    "blas_single_threaded",
     "modal_basis",
     "relative_fit_error",
 ]
@@ -61,6 +65,64 @@ def _ro(a, dtype=float):
     a = np.array(a, dtype=dtype)
     a.setflags(write=False)
     return a
+
+
+def _openblas_thread_controls():
+    """(get, set) thread-count functions of the OpenBLAS builds bundled in NumPy and SciPy wheels."""
+    import ctypes
+    import glob
+    import os
+
+    import scipy
+
+    out = []
+    for package, pattern, suffix in ((np, "numpy.libs", "64_"), (scipy, "scipy.libs", "")):
+        root = os.path.join(os.path.dirname(os.path.dirname(package.__file__)), pattern)
+        for path in glob.glob(os.path.join(root, "libscipy_openblas*")):
+            try:
+                lib = ctypes.CDLL(path)  # the already-loaded library: same handle
+                get = getattr(lib, f"scipy_openblas_get_num_threads{suffix}")
+                set_ = getattr(lib, f"scipy_openblas_set_num_threads{suffix}")
+            except (OSError, AttributeError):
+                continue
+            get.restype = ctypes.c_int
+            set_.argtypes = [ctypes.c_int]
+            out.append((get, set_))
+    return out
+
+
+@contextlib.contextmanager
+def single_threaded_blas():
+    """Run the enclosed code with the bundled OpenBLAS limited to one thread, then restore it.
+
+    The identification solves thousands of small least-squares problems (tens of columns). On a
+    loaded machine OpenBLAS's worker threads spin-wait for cores and slow such products down by
+    one to two orders of magnitude (measured here: a 1800 x 36 normal-equation product takes
+    70 ms threaded, 0.14 ms single-threaded). Nothing happens where the controls are not found
+    (other BLAS builds). Process-wide while it lasts: other threads' BLAS calls run single-threaded too.
+    """
+    controls = []
+    for get, set_ in _openblas_thread_controls():
+        try:
+            controls.append((set_, int(get())))
+            set_(1)
+        except Exception:  # noqa: BLE001 - a foreign library's call: never let it break the fit
+            continue
+    try:
+        yield
+    finally:
+        for set_, old in controls:
+            set_(old)
+
+def blas_single_threaded(func):
+    """Decorator: run ``func`` inside :func:`single_threaded_blas`."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        with single_threaded_blas():
+            return func(*args, **kwargs)
+
+    return wrapper
 
 
 def lstsq_normal(a, y, *, ridge: float = 1e-12):
@@ -404,6 +466,7 @@ def _untheta(theta):
     return np.exp(theta[:n]), np.exp(theta[n:])
 
 
+@blas_single_threaded
 def fit_poles_residues(
     freq_hz,
     frf,
@@ -478,6 +541,7 @@ def fit_poles_residues(
     return PoleResidueFit(**{**fit.__dict__, "fit_error": err})
 
 
+@blas_single_threaded
 def prune_modes(freq_hz, frf, fit: PoleResidueFit, *, weights=None, slots=None, upper_residual: bool = True,
                 lower_residual: bool = False, complex_modes: bool = False, max_damping: float = 0.5) -> PoleResidueFit:
     """Drop modes of a :func:`fit_poles_residues` result that do not lower the BIC.
@@ -661,6 +725,7 @@ def _modal_nlls(freq, h, wt, entries, slots, model0: ModalModel, *, residual: bo
     return fn, z, phi, coef, float(r @ r), sol
 
 
+@blas_single_threaded
 def fit_modal_model(
     frf: FRFTable,
     *,

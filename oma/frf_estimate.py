@@ -6,10 +6,10 @@ three force axes of a cut are all measured, so the full 3 x 3 receptance matrix 
 * ``H1 = S_yu S_uu^-T`` -- unbiased by output noise (the tracker), the OMA default;
 * ``H2 = S_yy^T S_yu^-H`` -- unbiased by input noise (square systems only);
 * ``Hv`` -- total least squares per output row on noise-scaled channels (Leuridan et al.;
-  Bendat & Piersol sec. 9.3), between the two.
+  Bendat & Piersol), between the two.
 
 Random error of an estimate with ``n_d`` equivalent averages and ``q`` inputs (Bendat & Piersol,
-Random Data, 4th ed., 2010, eqs. 9.52-9.90 and sec. 7.4): the complex variance of ``H1_oi`` is
+Random Data, 4th ed., 2010, chapters on single- and multiple-input FRF estimates): the complex variance of ``H1_oi`` is
 ``S_nn,o [S_uu^-T]_ii / (n_d - q + 1)`` with ``S_nn,o = (1 - gamma^2_o) S_yy,oo`` the output noise
 left unexplained (``gamma^2_o`` the multiple coherence); for one input this is the familiar
 ``eps[|H|] = sqrt(1 - gamma^2) / (|gamma| sqrt(2 n_d))``.

@@ -5,7 +5,7 @@ frequency ``f_s = rpm / 60`` (the tooth-passing lines ``teeth * f_s`` and their 
 strong ones; the others come from runout). They are forced response and are kept out of the FRF
 estimate; the broadband rest of the force (the background) is what excites the structure's free
 response (Nguyen & Melkote 2020; Brincker & Ventura, Introduction to Operational Modal Analysis,
-2015, ch. 8, harmonics in OMA).
+2015, on harmonics in OMA).
 
 The nominal spindle speed of a record can be off by a few percent (controller override, spindle
 slip); the spindle frequency is refined by maximising the energy of the whole harmonic comb in the
@@ -292,7 +292,7 @@ def background_variance(
 ) -> BackgroundEstimate:
     """Variance of the background force per axis: the force PSD with the harmonics removed, integrated.
 
-    ``sigma^2 = integral_0^{fs/2} P_clean(f) df`` (Nguyen & Melkote 2020, eq. 5). The harmonics are
+    ``sigma^2 = integral_0^{fs/2} P_clean(f) df`` (Nguyen & Melkote 2020). The harmonics are
     removed in two steps: (1) sinusoids at every spindle multiple (refined frequency), a constant
     and a line are fitted by least squares and subtracted in the time domain; (2) in the Welch
     PSD of what is left, the lines within two bins of a harmonic that still stand ``excess`` times

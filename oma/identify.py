@@ -26,7 +26,7 @@ import numpy as np
 
 from .detectability import Detectability, detectability
 from .errors import RecordError
-from .fit import ModalFit, fit_modal_model, relative_fit_error
+from .fit import ModalFit, fit_modal_model, relative_fit_error, single_threaded_blas
 from .frf_estimate import FRFEstimate, estimate_frf, frf_agreement
 from .frf_table import FRFTable
 from .harmonics import BackgroundEstimate, Harmonics, background_variance, find_harmonics, fit_harmonic_signal
@@ -204,9 +204,10 @@ class Identification:
 def _fit_band(est: FRFEstimate, fs: float) -> tuple[float, float]:
     """Lines worth fitting: from the first line up to 2.5 times the highest coherent line.
 
-    A line is coherent when its multiple coherence exceeds the 99 % point of the coherence of
-    unrelated signals, a Beta(q, n_d - q) variable for ``q`` inputs and ``n_d`` averages (Bendat &
-    Piersol sec. 9.3.2), at two adjacent lines.
+    A line is coherent when the running median (five lines) of its multiple coherence exceeds the
+    99 % point of the multiple coherence of unrelated Gaussian signals, a Beta(q, n_d - q)
+    variable for ``q`` inputs and ``n_d`` averages (Goodman 1963; Bendat & Piersol). The band
+    ends at :data:`MAX_BAND_HZ` at most.
     """
     from scipy import stats
 
@@ -273,6 +274,12 @@ def identify(
     RecordError
         A record without force or motion channels, or a bad cut window.
     """
+    with single_threaded_blas():
+        return _identify(records, method=method, nperseg=nperseg, band_hz=band_hz,
+                         refine_harmonics=refine_harmonics, max_fit_error=max_fit_error, n_trials=n_trials, rng=rng)
+
+
+def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_error, n_trials, rng) -> Identification:
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
     records = list(records)
@@ -409,7 +416,8 @@ def identify(
                 f"displacement sensor can resolve: the {AXES[a]} modes are not reliably identified"
             )
         if np.isfinite(ferr[a]) and ferr[a] > max_fit_error:
-            warnings.append(f"{AXES[a]}: the model misses the H1 estimate by {100 * ferr[a]:.0f} % (fit error)")
+            what = "the H1 estimate" if tfit is None else "the measured displacement (beyond its rounding)"
+            warnings.append(f"{AXES[a]}: the model misses {what} by {100 * ferr[a]:.0f} % (fit error)")
     for hz in model.natural_frequency_hz:
         for h in harmonics:
             if h is not None and np.any(np.abs(h.freq_hz[h.significant] - hz) < 2.0 * (f[1] - f[0])):
@@ -424,7 +432,7 @@ def identify(
     if not trusted:
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     source = {
-        "method": "oma-h1" if method == "h1" else "oma-time-domain-ml",
+        "method": "oma-h1" if tfit is None else ("oma-time-domain-ml" if tfit.quantised else "oma-time-domain-ls"),
         "records": names,
         "fit_error": _num(np.nanmax(ferr)) if np.any(np.isfinite(ferr)) else None,
         "trusted": trusted,

@@ -21,8 +21,8 @@ References
 J. J. Bussgang, "Crosscorrelation functions of amplitude-distorted Gaussian signals", MIT RLE
 Tech. Rep. 216 (1952). A. B. Sripad, D. L. Snyder, "A necessary and sufficient condition for
 quantization errors to be uniform and white", IEEE Trans. ASSP 25 (1977) 442-448.
-R. Pintelon, J. Schoukens, System Identification: a Frequency Domain Approach, 2nd ed. (2012),
-ch. 19 (maximum likelihood, errors-in-variables). D. W. Marquardt, J. SIAM 11 (1963) 431-441.
+D. W. Marquardt, "An algorithm for least-squares estimation of nonlinear parameters", J. SIAM 11
+(1963) 431-441.
 """
 
 from __future__ import annotations

@@ -6,8 +6,7 @@ has ``S = 2 s2 / fs`` and ``sum(S) * df`` equals its variance.
 References
 ----------
 P. D. Welch, "The use of fast Fourier transform for the estimation of power spectra", IEEE Trans.
-Audio Electroacoust. 15 (1967) 70-73. J. S. Bendat, A. G. Piersol, Random Data, 4th ed. (2010),
-sec. 11.5.
+Audio Electroacoust. 15 (1967) 70-73. J. S. Bendat, A. G. Piersol, Random Data, 4th ed. (2010).
 """
 
 from __future__ import annotations
@@ -67,7 +66,7 @@ def default_nperseg(n_samples: int) -> int:
 def equivalent_averages(n_segments: int, nperseg: int, noverlap: int, window="hann") -> float:
     """Equivalent number of independent averages of a Welch estimate.
 
-    Welch (1967), eq. (24): the variance of the averaged periodogram of white noise is that of
+    Welch (1967): the variance of the averaged periodogram of white noise is that of
     ``n_d`` independent periodograms with ``1/n_d = (1/K) [1 + 2 sum_j (1 - j/K) rho(j)]`` where
     ``rho(j)`` is the squared normalised window correlation at a shift of ``j`` segment steps.
     """

@@ -16,9 +16,10 @@ The regenerative milling simulator lives in ``stability`` and is deliberately no
 References
 ----------
 V. Nguyen, S. N. Melkote, "Identification of industrial robot frequency response function for
-robotic milling using operational modal analysis", Procedia Manufacturing 48 (2020) 154-162.
+robotic milling using operational modal analysis", Procedia Manufacturing 48 (2020),
+doi:10.1016/j.promfg.2020.05.032.
 G. F. Franklin, J. D. Powell, M. Workman, Digital Control of Dynamic Systems, 3rd ed. (1998),
-sec. 6.3 (triangle-hold equivalent).
+(the triangle-hold equivalent).
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ def mode_filter(natural_frequency_hz: float, damping_ratio: float, sample_rate_h
     The input ``p`` is taken piecewise linear between samples (first-order hold), which makes the
     discretisation exact for such inputs and free of the half-sample delay of a zero-order hold.
     Closed form of the triangle-hold equivalent ``H(z) = (z - 1)^2 / (T z) Z{G(s) / s^2}``
-    (Franklin, Powell & Workman, sec. 6.3.2) for an underdamped mode; ``zeta >= 1`` falls back to
+    (Franklin, Powell & Workman) for an underdamped mode; ``zeta >= 1`` falls back to
     :func:`scipy.signal.cont2discrete`.
 
     Parameters

@@ -5,9 +5,9 @@ half-power band ``2 zeta f_n`` (about 1 Hz for a 10 Hz robot mode at 5 %). A 1.1
 most a few short segments: the peak is smeared by the window (bias) and barely averaged (scatter).
 Here the measured force drives the modal model sample by sample, exactly discretised, and the
 parameters are chosen so that the simulated displacement matches the measured one (an
-output-error fit; Ljung, System Identification, 2nd ed. 1999, sec. 4.2 and 7.3; Pintelon &
-Schoukens, System Identification: a Frequency Domain Approach, 2012, ch. 6 on why the
-time-domain/transient-aware fit has no leakage). No window, no leakage, every sample used; the
+output-error fit; L. Ljung, System Identification, 2nd ed. 1999; R. Pintelon, J. Schoukens,
+System Identification: a Frequency Domain Approach, 2012, on why a fit that models the initial
+transient has no leakage). No window, no leakage, every sample used; the
 unknown state at the start of the window is estimated (free-response terms), so a short record is
 no handicap beyond its information content.
 
@@ -49,7 +49,7 @@ import numpy as np
 from scipy import optimize
 from scipy import signal as sps
 
-from .fit import _residue_modes, lstsq_normal
+from .fit import _residue_modes, blas_single_threaded, lstsq_normal
 from .harmonics import Harmonics, fit_harmonic_signal, harmonic_basis
 from .modal import ModalModel
 from .quantised import MIN_DAMPING, free_residue_ml, modal_form_ml
@@ -77,7 +77,8 @@ class TimeFit:
     ----------
     model : ModalModel
     residues : ndarray, shape (n_modes, 3, 3)
-        Free residues ``A_r`` before the rank-one step, m/N s^-2 (rows outputs, columns inputs).
+        Residue matrices ``A_r`` of the modes, m/N s^-2 (rows outputs, columns inputs): the free
+        least-squares residues of the mode's pole, or ``phi_r phi_r^T`` in the modal form.
     residual_rms_m : ndarray, shape (3,)
         RMS of the displacement residual per output, m (NaN where not measured).
     fit_error : ndarray, shape (3,)
@@ -341,6 +342,7 @@ def _nls(prob, fn, zeta, max_damping, *, rough=False):
     return np.exp(sol.x[:n]), np.exp(sol.x[n:]), sol
 
 
+@blas_single_threaded
 def fit_time_domain(
     signals: Sequence[PreparedSignals],
     harmonics: Sequence[Harmonics | None],

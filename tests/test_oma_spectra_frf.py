@@ -63,7 +63,7 @@ def test_h1_is_unbiased_under_output_noise_and_its_error_band_is_calibrated():
     # records must match the predicted random error
     errs, preds = [], []
     for seed in range(6):
-        # 4096-sample segments (0.24 Hz) keep the resolution bias (B&P eq. 9.86, -(B_e/B_r)^2/3 =
+        # 4096-sample segments (0.24 Hz) keep the resolution bias (Bendat & Piersol: -(B_e/B_r)^2/3 =
         # -1.5 % at the peaks) below the random error being tested
         model, sig = _mimo_records(seed, output_noise=2e-6, seconds=40.0)
         est = estimate_frf(sig, nperseg=4096)
@@ -82,7 +82,7 @@ def test_h1_is_unbiased_under_output_noise_and_its_error_band_is_calibrated():
 
 
 def test_h1_biased_low_and_h2_unbiased_under_input_noise():
-    # input (force) noise biases H1 by S_ff / (S_ff + S_nn) (Bendat & Piersol eq. 9.64), H2 not;
+    # input (force) noise biases H1 by S_ff / (S_ff + S_nn) (Bendat & Piersol), H2 not;
     # Hv with the right noise ratio is consistent when both channels are noisy
     model, sig = _mimo_records(7, input_noise=10.0, output_noise=2e-7, seconds=60.0)
     f_noise_ratio = 20.0**2 / (20.0**2 + 10.0**2)  # = 0.8
