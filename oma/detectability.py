@@ -19,6 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from ._arrays import readonly as _ro
 from scipy import signal as sps
 
 from .modal import ModalModel
@@ -27,12 +29,6 @@ from .synthetic import mode_filter
 __all__ = ["Detectability", "peak_to_valley_unit", "detectability"]
 
 AXES = ("X", "Y", "Z")
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 def peak_to_valley_unit(

@@ -39,6 +39,8 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+
+from ._arrays import readonly as _ro
 from scipy import optimize
 
 from .frf_table import AXES, FRFTable
@@ -59,12 +61,6 @@ __all__ = [
     "modal_basis",
     "relative_fit_error",
 ]
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 def _openblas_thread_controls():

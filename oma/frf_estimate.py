@@ -26,6 +26,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
+from ._arrays import readonly as _ro
 from .frf_table import AXES, FRFTable
 from .harmonics import Harmonics, default_half_width_hz, harmonic_line_mask
 from .signals import PreparedSignals, detrend
@@ -40,12 +41,6 @@ __all__ = [
 
 Estimator = Literal["h1", "h2", "hv"]
 ESTIMATORS = ("h1", "h2", "hv")
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from ._arrays import readonly as _ro
 from scipy import optimize
 from scipy import signal as sps
 
@@ -34,12 +36,6 @@ __all__ = [
     "BackgroundEstimate",
     "fit_harmonic_signal",
 ]
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 def harmonic_frequencies(spindle_hz: float, teeth: int, max_hz: float):

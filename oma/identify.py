@@ -24,6 +24,7 @@ from typing import Any, Literal, Sequence
 
 import numpy as np
 
+from ._arrays import readonly as _ro
 from .detectability import Detectability, detectability
 from .errors import RecordError
 from .fit import ModalFit, fit_modal_model, relative_fit_error, single_threaded_blas
@@ -48,12 +49,6 @@ MAX_BAND_HZ = 100.0
 #: time-domain fit searches for the modes itself.
 MIN_RESOLVED_BANDWIDTH_HZ = 0.5
 Method = Literal["default", "h1"]
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 def _num(x):

@@ -17,18 +17,14 @@ from typing import Any
 
 import numpy as np
 
+from ._arrays import readonly as _readonly
+
 __all__ = ["ModalModel", "hz_to_rad_s", "in_series"]
 
 
 def hz_to_rad_s(freq_hz):
     """Frequency in Hz to angular frequency in rad/s."""
     return 2.0 * np.pi * np.asarray(freq_hz, dtype=float)
-
-
-def _readonly(a, dtype=float) -> np.ndarray:
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,8 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+
+from ._arrays import readonly as _ro
 from scipy import optimize
 from scipy import signal as sps
 
@@ -61,12 +63,6 @@ __all__ = ["TimeFit", "fit_time_domain", "NoModeFound"]
 
 class NoModeFound(ValueError):
     """The records support no mode (nothing but rounding noise and forced response)."""
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)

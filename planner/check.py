@@ -75,6 +75,7 @@ from typing import Literal
 
 import numpy as np
 
+from oma._arrays import readonly as _ro
 from oma.cutting import Cut, CuttingCoefficients, Tool, engagement_angles
 from oma.modal import ModalModel
 from stability.oriented import average_directional_matrix, engaged_axial_integral, force_coefficients
@@ -469,11 +470,6 @@ def _kernel():
 
 
 # ================================================================================ result type
-def _ro(a, dtype=float) -> np.ndarray:
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
-
 
 def _json_float(x):
     x = float(x)

@@ -57,6 +57,8 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
+
+from oma._arrays import readonly as _ro
 from scipy.interpolate import PchipInterpolator
 
 from oma.cutting import engagement_angles
@@ -589,11 +591,6 @@ class _CutModel:
 
 
 # --------------------------------------------------------------------------------------- results
-def _ro(a):
-    a = np.array(a, dtype=float)
-    a.setflags(write=False)
-    return a
-
 
 def _jf(x):
     return None if x is None or not math.isfinite(float(x)) else float(x)

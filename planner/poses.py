@@ -68,6 +68,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+
+from oma._arrays import readonly as _ro
 from scipy.interpolate import RBFInterpolator
 from scipy.optimize import linear_sum_assignment, nnls
 from scipy.spatial import Delaunay, QhullError
@@ -138,12 +140,6 @@ def mac_matrix(a, b) -> np.ndarray:
     num = (a @ b.T) ** 2
     den = np.sum(a * a, axis=1)[:, None] * np.sum(b * b, axis=1)[None, :]
     return num / den
-
-
-def _ro(a, dtype=float) -> np.ndarray:
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 def _positive_tol(value, name: str) -> float:

@@ -6,16 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from oma._arrays import readonly as _ro
 from oma.cutting import Material, Tool
 from stability.setup import Limits
 
 __all__ = ["Toolpath"]
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)

@@ -41,18 +41,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from oma._arrays import readonly as _ro
 from scipy import optimize
 from scipy import signal as sps
 
 from .spectral import fold_frequency, sinusoid_coefficients
 
 __all__ = ["ChatterResult", "refine_spindle_frequency_aliased", "detect_chatter", "comb_energy"]
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from oma._arrays import readonly as _ro
 from oma.errors import InputError
 
 from .chatter import ChatterResult, comb_energy, detect_chatter
@@ -40,12 +41,6 @@ DEFAULT_DIRECTORY = Path(__file__).resolve().parents[3] / "shared" / "data" / "m
 #: The source project's chatter threshold on its indicator.
 CI_THRESHOLD = 0.9
 HEADER = ("Time (s)", "Accel X (m/s^2)", "Accel Y (m/s^2)", "Accel Z (m/s^2)", "CI Value")
-
-
-def _ro(a, dtype=float):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)
