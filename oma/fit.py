@@ -1,17 +1,20 @@
 """Modal fit of measured FRFs: model order from a stabilisation diagram, then nonlinear least squares.
 
-Two stages, as in experimental modal analysis practice:
+Three stages, as in experimental modal analysis practice:
 
-1. Poles. A least-squares complex-frequency (LSCF) common-denominator fit of all measured FRFs at
-   increasing model order (Guillaume et al. 2003; Peeters et al. 2004 "PolyMAX"). Poles that come
-   back at successive orders with the same frequency and damping are stable; those that are stable
-   over many orders are the physical modes (the stabilisation diagram).
+1. Poles. The stabilisation diagram of least-squares complex-frequency (LSCF) fits at increasing
+   model order (:mod:`oma.lscf`): poles stable over many orders are the candidate modes.
 2. Refinement. Nonlinear least squares on the complex FRFs, weighted by the inverse random error
    of the estimate (from the coherence, Bendat & Piersol), by variable projection (Golub & Pereyra
    2003): the natural frequencies and damping ratios are the nonlinear unknowns; residues and the
-   residual compliance of out-of-band modes are solved linearly at each step. A final pass fits
-   the :class:`~oma.modal.ModalModel` form itself (rank-one residues ``u u^T / m``). Modes the data
-   do not support are dropped by the Bayesian information criterion.
+   residual compliance of out-of-band modes are solved linearly at each step, and the Jacobian is
+   analytic. A final pass fits the :class:`~oma.modal.ModalModel` form itself (rank-one residues
+   ``u u^T / m``).
+3. Selection. A mode is kept when it is a resonance of the band (natural frequency inside the
+   fitted lines, damping not pinned at its bound), has a real mode shape where several entries
+   share it (modal phase collinearity, Pappa et al. 1993), and lowers the Bayesian information
+   criterion counted with the effective number of independent residuals (their autocorrelation
+   along frequency, Geyer 1992), not every line as if the errors were white.
 
 Model of entry ``(o, i)``, ``w`` in rad/s::
 
@@ -22,134 +25,41 @@ residual compliance ``R`` (modes above the band) and optional residual mass ``L`
 
 References
 ----------
-P. Guillaume, P. Verboven, S. Vanlanduit, H. Van der Auweraer, B. Peeters, "A poly-reference
-implementation of the least-squares complex frequency-domain estimator", Proc. IMAC XXI (2003).
-B. Peeters, H. Van der Auweraer, P. Guillaume, J. Leuridan, "The PolyMAX frequency-domain method:
-a new standard for modal parameter estimation?", Shock and Vibration 11 (2004) 395-409.
+G. Golub, V. Pereyra, "The differentiation of pseudo-inverses and nonlinear least squares problems
+whose variables separate", SIAM J. Numer. Anal. 10 (1973) 413-432.
 G. Golub, V. Pereyra, "Separable nonlinear least squares: the variable projection method and its
 applications", Inverse Problems 19 (2003) R1-R26.
+R. S. Pappa, K. B. Elliott, A. Schenk, "Consistent-mode indicator for the eigensystem realization
+algorithm", J. Guidance, Control, and Dynamics 16 (1993) 852-858.
+C. J. Geyer, "Practical Markov chain Monte Carlo", Statistical Science 7 (1992) 473-483.
 G. Schwarz, "Estimating the dimension of a model", Ann. Statist. 6 (1978) 461-464.
 """
 
 from __future__ import annotations
 
-import contextlib
-import functools
+import dataclasses
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-
-from ._arrays import readonly as _ro
 from scipy import optimize
 
+from ._arrays import readonly as _ro
+from ._linalg import blas_single_threaded, lstsq_normal
 from .frf_table import AXES, FRFTable
+from .lscf import StabilisationDiagram, stabilisation_diagram
 from .modal import ModalModel, hz_to_rad_s
 
 __all__ = [
-    "StabilisationDiagram",
     "PoleResidueFit",
     "ModalFit",
-    "lscf_poles",
-    "stabilisation_diagram",
     "fit_poles_residues",
     "fit_modal_model",
     "prune_modes",
-    "lstsq_normal",
-    "single_threaded_blas",
-    "blas_single_threaded",
+    "modal_phase_collinearity",
     "modal_basis",
     "relative_fit_error",
 ]
-
-
-def _openblas_thread_controls():
-    """(get, set) thread-count functions of the OpenBLAS builds bundled in NumPy and SciPy wheels."""
-    import ctypes
-    import glob
-    import os
-
-    import scipy
-
-    out = []
-    for package, pattern, suffix in ((np, "numpy.libs", "64_"), (scipy, "scipy.libs", "")):
-        root = os.path.join(os.path.dirname(os.path.dirname(package.__file__)), pattern)
-        for path in glob.glob(os.path.join(root, "libscipy_openblas*")):
-            try:
-                lib = ctypes.CDLL(path)  # the already-loaded library: same handle
-                get = getattr(lib, f"scipy_openblas_get_num_threads{suffix}")
-                set_ = getattr(lib, f"scipy_openblas_set_num_threads{suffix}")
-            except (OSError, AttributeError):
-                continue
-            get.restype = ctypes.c_int
-            set_.argtypes = [ctypes.c_int]
-            out.append((get, set_))
-    return out
-
-
-@contextlib.contextmanager
-def single_threaded_blas():
-    """Run the enclosed code with the bundled OpenBLAS limited to one thread, then restore it.
-
-    The identification solves thousands of small least-squares problems (tens of columns). On a
-    loaded machine OpenBLAS's worker threads spin-wait for cores and slow such products down by
-    one to two orders of magnitude (measured here: a 1800 x 36 normal-equation product takes
-    70 ms threaded, 0.14 ms single-threaded). Nothing happens where the controls are not found
-    (other BLAS builds). Process-wide while it lasts: other threads' BLAS calls run single-threaded too.
-    """
-    controls = []
-    for get, set_ in _openblas_thread_controls():
-        try:
-            controls.append((set_, int(get())))
-            set_(1)
-        except Exception:  # noqa: BLE001 - a foreign library's call: never let it break the fit
-            continue
-    try:
-        yield
-    finally:
-        for set_, old in controls:
-            set_(old)
-
-def blas_single_threaded(func):
-    """Decorator: run ``func`` inside :func:`single_threaded_blas`."""
-
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        with single_threaded_blas():
-            return func(*args, **kwargs)
-
-    return wrapper
-
-
-def lstsq_normal(a, y, *, ridge: float = 1e-12):
-    """Least-squares solution of ``a c = y`` through the column-scaled normal equations.
-
-    For the small, well-scaled designs of this package (tens of columns) this is as accurate as
-    an SVD solve and, unlike LAPACK's threaded ``gelsd``, does not slow down by two orders of
-    magnitude on a loaded multi-core machine. A relative ``ridge`` guards rank-deficient designs.
-
-    Parameters
-    ----------
-    a : ndarray, shape (n, p)
-    y : ndarray, shape (n,) or (n, k)
-
-    Returns
-    -------
-    ndarray, shape (p,) or (p, k)
-    """
-    from scipy.linalg import cho_factor, cho_solve
-
-    scale = np.sqrt(np.sum(a * a, axis=0))
-    scale[scale == 0] = 1.0
-    a_s = a / scale
-    g = a_s.T @ a_s
-    g[np.diag_indices_from(g)] += ridge * max(float(np.trace(g)) / max(g.shape[0], 1), 1e-300)
-    rhs = a_s.T @ y
-    try:
-        c = cho_solve(cho_factor(g, check_finite=False), rhs, check_finite=False)
-    except np.linalg.LinAlgError:
-        c = np.linalg.pinv(g) @ rhs
-    return c / (scale if c.ndim == 1 else scale[:, None])
 
 
 def modal_basis(freq_hz, natural_frequency_hz, damping_ratio) -> np.ndarray:
@@ -158,155 +68,6 @@ def modal_basis(freq_hz, natural_frequency_hz, damping_ratio) -> np.ndarray:
     wr = hz_to_rad_s(np.atleast_1d(natural_frequency_hz))[:, None]
     z = np.atleast_1d(np.asarray(damping_ratio, dtype=float))[:, None]
     return 1.0 / (wr**2 - w**2 + 2j * z * wr * w)
-
-
-# =============================================================================== LSCF
-def lscf_poles(freq_hz, frf, order: int, *, weights=None, max_damping: float = 0.3):
-    """Poles of a real-coefficient LSCF common-denominator fit of order ``order``.
-
-    Parameters
-    ----------
-    freq_hz : array_like, shape (n_freq,)
-        Lines of the band to fit, Hz.
-    frf : array_like, shape (n_entries, n_freq), complex
-        The FRFs (any consistent units).
-    order : int
-        Denominator order (up to ``order / 2`` complex pole pairs).
-    weights : array_like, shape (n_entries, n_freq), optional
-        Non-negative weights of the equation errors (default 1).
-    max_damping : float
-        Poles with larger damping ratio are dropped.
-
-    Returns
-    -------
-    natural_frequency_hz, damping_ratio : ndarray
-        Physical poles (positive damping below ``max_damping``, inside the band), sorted.
-    """
-    f = np.asarray(freq_hz, dtype=float)
-    h = np.array(frf, dtype=complex, ndmin=2)
-    w = np.ones(h.shape) if weights is None else np.broadcast_to(np.asarray(weights, dtype=float), h.shape)
-    f_max = f.max()
-    dt = 1.0 / (2.0 * f_max * 1.05)
-    omega = 2.0 * np.pi * f
-    basis = np.exp(1j * np.outer(omega * dt, np.arange(order + 1)))  # (nf, p+1)
-    m = np.zeros((order + 1, order + 1))
-    for he, we in zip(h, w):
-        x = we[:, None] * basis
-        y = -(we * he)[:, None] * basis
-        r = np.real(x.conj().T @ x)
-        s = np.real(x.conj().T @ y)
-        t = np.real(y.conj().T @ y)
-        m += t - s.T @ np.linalg.solve(r + 1e-14 * np.trace(r) * np.eye(order + 1), s)
-    alpha = np.ones(order + 1)
-    alpha[:order] = np.linalg.lstsq(m[:order, :order], -m[:order, order], rcond=None)[0]
-    roots = np.roots(alpha[::-1])
-    roots = roots[np.abs(roots) > 0]
-    s = np.log(roots.astype(complex)) / dt
-    s = s[np.imag(s) > 0]
-    wn = np.abs(s)
-    zeta = -np.real(s) / wn
-    fn = wn / (2.0 * np.pi)
-    ok = (zeta > 0) & (zeta < max_damping) & (fn > f.min()) & (fn < f_max)
-    idx = np.argsort(fn[ok])
-    return fn[ok][idx], zeta[ok][idx]
-
-
-@dataclass(frozen=True)
-class StabilisationDiagram:
-    """Poles of LSCF fits at increasing order and the modes picked from them.
-
-    Attributes
-    ----------
-    orders : tuple of int
-    poles : tuple of (freq_hz, damping_ratio, stable) arrays, one per order
-        ``stable`` is True where the pole matches one of the previous order within the tolerances.
-    natural_frequency_hz, damping_ratio : ndarray
-        The selected modes (medians of their clusters of stable poles), strongest first.
-    counts : ndarray of int
-        Number of orders at which each selected mode was stable.
-    freq_tol, damping_tol : float
-        Relative tolerances used.
-    """
-
-    orders: tuple
-    poles: tuple
-    natural_frequency_hz: np.ndarray
-    damping_ratio: np.ndarray
-    counts: np.ndarray
-    freq_tol: float
-    damping_tol: float
-
-    def __post_init__(self):
-        object.__setattr__(self, "natural_frequency_hz", _ro(self.natural_frequency_hz))
-        object.__setattr__(self, "damping_ratio", _ro(self.damping_ratio))
-        object.__setattr__(self, "counts", _ro(self.counts, int))
-
-    def plot(self, ax=None, **kwargs):
-        """Stabilisation diagram (see :func:`oma.plots.plot_stabilisation`)."""
-        from .plots import plot_stabilisation
-
-        return plot_stabilisation(self, ax=ax, **kwargs)
-
-
-def stabilisation_diagram(
-    freq_hz,
-    frf,
-    *,
-    weights=None,
-    max_order: int = 40,
-    min_order: int = 2,
-    freq_tol: float = 0.01,
-    damping_tol: float = 0.10,
-    min_stable_fraction: float = 0.3,
-    max_damping: float = 0.3,
-) -> StabilisationDiagram:
-    """LSCF poles at orders ``min_order .. max_order`` (step 2) and the modes stable across them.
-
-    A pole is stable at an order when the previous order has one within ``freq_tol`` in frequency
-    and ``damping_tol`` in damping (relative; 1 % and 10 % are the usual choices for noisy data).
-    Stable poles are clustered by frequency (within ``2 freq_tol``); a cluster that is stable at
-    no fewer than ``min_stable_fraction`` of the orders above the one where it first appeared is a
-    mode.
-    """
-    orders = tuple(range(max(min_order, 2), max_order + 1, 2))
-    poles = []
-    prev = (np.zeros(0), np.zeros(0))
-    for p in orders:
-        fn, z = lscf_poles(freq_hz, frf, p, weights=weights, max_damping=max_damping)
-        stable = np.zeros(fn.size, dtype=bool)
-        if prev[0].size and fn.size:
-            df = np.abs(fn[:, None] - prev[0][None, :]) / fn[:, None]
-            dz = np.abs(z[:, None] - prev[1][None, :]) / z[:, None]
-            stable = np.any((df < freq_tol) & (dz < damping_tol), axis=1)
-        poles.append((_ro(fn), _ro(z), _ro(stable, bool)))
-        prev = (fn, z)
-    # cluster the stable poles
-    all_f = np.concatenate([p[0][p[2]] for p in poles]) if poles else np.zeros(0)
-    all_z = np.concatenate([p[1][p[2]] for p in poles]) if poles else np.zeros(0)
-    all_o = np.concatenate([np.full(int(np.sum(p[2])), k) for k, p in enumerate(poles)]) if poles else np.zeros(0)
-    sel_f, sel_z, sel_c = [], [], []
-    if all_f.size:
-        order_idx = np.argsort(all_f)
-        fs, zs, os_ = all_f[order_idx], all_z[order_idx], all_o[order_idx]
-        groups = np.split(np.arange(fs.size), np.flatnonzero(np.diff(fs) / fs[1:] > 2 * freq_tol) + 1)
-        for g in groups:
-            n_orders = np.unique(os_[g]).size
-            first = int(np.min(os_[g]))
-            possible = len(orders) - first
-            if n_orders >= max(2, min_stable_fraction * possible):
-                sel_f.append(np.median(fs[g]))
-                sel_z.append(np.median(zs[g]))
-                sel_c.append(n_orders)
-    idx = np.argsort(sel_c)[::-1]
-    return StabilisationDiagram(
-        orders=orders,
-        poles=tuple(poles),
-        natural_frequency_hz=np.asarray(sel_f)[idx] if sel_f else np.zeros(0),
-        damping_ratio=np.asarray(sel_z)[idx] if sel_z else np.zeros(0),
-        counts=np.asarray(sel_c)[idx] if sel_c else np.zeros(0, int),
-        freq_tol=freq_tol,
-        damping_tol=damping_tol,
-    )
 
 
 # =============================================================================== pole-residue NLLS
@@ -386,71 +147,181 @@ def relative_fit_error(data, model, weights=None) -> np.ndarray:
 
 
 class _PoleResidueProblem:
-    """Variable-projection least squares: poles nonlinear, everything else linear."""
+    """Variable-projection least squares: poles nonlinear, residues and residual terms linear.
+
+    All entries share the column functions of the design (the modal basis and the residual
+    terms); entries differ only in their weights. The linear problem therefore splits into one
+    small problem per slot (entries sharing residues), whose normal matrix
+    ``Re(G^H diag(sum_e w_e^2) G)`` costs one ``(p x n_freq) (n_freq x p)`` product.
+    :meth:`jacobian_theta` is the exact variable-projection Jacobian
+    ``-(P_perp dA c + A (A^T A)^-1 dA^T r)`` (Golub & Pereyra 1973), with the derivatives of the
+    modal basis in closed form: one Jacobian costs about as much as one residual, where finite
+    differences cost ``2 n_modes`` residuals.
+
+    The stacked residual is ``[Re(r).ravel(), Im(r).ravel()]`` with ``r`` of shape
+    (n_entries, n_freq), ``r_e = w_e (h_e - G c_slot(e)) / scale``.
+    """
 
     def __init__(self, freq_hz, frf, weights, slots, *, upper, lower, complex_modes):
         self.f = np.asarray(freq_hz, dtype=float)
         self.w_rad = hz_to_rad_s(self.f)
         self.h = np.asarray(frf, dtype=complex)
-        self.wt = np.asarray(weights, dtype=float)
+        wt = np.asarray(weights, dtype=float)
         self.slots = np.asarray(slots, dtype=int)
         self.n_slots = int(self.slots.max()) + 1
         self.upper, self.lower, self.complex_modes = upper, lower, complex_modes
-        y = np.concatenate([(self.wt * self.h).real.ravel(), (self.wt * self.h).imag.ravel()])
+        y = np.concatenate([(wt * self.h).real.ravel(), (wt * self.h).imag.ravel()])
         # residuals relative to the data's rms keep the optimiser's tolerances meaningful
         self.scale = float(np.sqrt(np.mean(y**2))) or 1.0
-        self.wt = self.wt / self.scale
+        self.wt = wt / self.scale
         self.y = y / self.scale
+        self.n_data = int(y.size)
+        self.per_mode = 2 if complex_modes else 1
+        w2 = self.wt**2
+        # one-hot (n_slots, n_entries): sums over the entries of each slot
+        self._slot_sum = (self.slots[None, :] == np.arange(self.n_slots)[:, None]).astype(float)
+        # per slot: summed squared weights, and weighted data, shape (n_slots, n_freq)
+        self._w2_slot = self._slot_sum @ w2
+        self._w2h_slot = self._slot_sum @ (w2 * self.h)
+        fixed = []
+        if upper:
+            fixed.append(np.ones(self.f.size))
+        if lower:
+            with np.errstate(divide="ignore"):
+                fixed.append(np.where(self.w_rad > 0, -1.0 / self.w_rad**2, 0.0))
+        self._fixed = np.array(fixed, dtype=complex).reshape(len(fixed), self.f.size).T  # (n_freq, n_fixed)
+        self._cache_key = None
+        self._cache = None
 
-    def design(self, fn, zeta):
-        n_e, nf = self.h.shape
-        basis = modal_basis(self.f, fn, zeta)  # (n_modes, nf)
-        n_modes = basis.shape[0]
-        per_mode = 2 if self.complex_modes else 1
-        n_cols = n_modes * self.n_slots * per_mode + self.n_slots * (int(self.upper) + int(self.lower))
-        a = np.zeros((n_e, nf, n_cols), dtype=complex)
-        for e in range(n_e):
-            s = self.slots[e]
-            col = 0
-            for r in range(n_modes):
-                a[e, :, col + s] = basis[r]
-                col += self.n_slots
-                if self.complex_modes:
-                    a[e, :, col + s] = 1j * self.w_rad * basis[r]
-                    col += self.n_slots
-            if self.upper:
-                a[e, :, col + s] = 1.0
-                col += self.n_slots
-            if self.lower:
-                a[e, :, col + s] = -1.0 / self.w_rad**2
-        a *= self.wt[:, :, None]
-        a = a.reshape(n_e * nf, n_cols)
-        return np.vstack([a.real, a.imag])
+    # ------------------------------------------------------------------ linear part
+    def _columns(self, basis):
+        """Design columns shared by all entries, shape (n_freq, p): per mode basis (and i w basis)."""
+        n = basis.shape[0]
+        cols = np.empty((self.f.size, n * self.per_mode + self._fixed.shape[1]), dtype=complex)
+        if self.complex_modes:
+            cols[:, 0 : 2 * n : 2] = basis.T
+            cols[:, 1 : 2 * n : 2] = (1j * self.w_rad)[:, None] * basis.T
+        else:
+            cols[:, :n] = basis.T
+        cols[:, n * self.per_mode :] = self._fixed
+        return cols
+
+    def _state(self, fn, zeta):
+        """Columns, coefficients, factorisations and residual at (fn, zeta), cached."""
+        fn = np.atleast_1d(np.asarray(fn, dtype=float))
+        zeta = np.atleast_1d(np.asarray(zeta, dtype=float))
+        key = (fn.tobytes(), zeta.tobytes())
+        if key == self._cache_key:
+            return self._cache
+        from scipy.linalg import cho_factor
+
+        basis = modal_basis(self.f, fn, zeta)
+        g = self._columns(basis)
+        gr, gi = np.ascontiguousarray(g.real), np.ascontiguousarray(g.imag)
+        # Re(G^H W G) and Re(G^H W h) in real arithmetic (BLAS does not mix real and complex)
+        normal = (self._w2_slot[:, None, :] * gr.T[None]) @ gr + (self._w2_slot[:, None, :] * gi.T[None]) @ gi
+        rhs = self._w2h_slot.real @ gr + self._w2h_slot.imag @ gi  # (n_slots, p)
+        p = g.shape[1]
+        if p == 0:  # no mode and no residual term: the model is zero
+            state = dict(basis=basis, gr=gr, gi=gi, coef=np.zeros((self.n_slots, 0)), factors=[],
+                         col_scale=np.ones((self.n_slots, 0)), r=self.wt * self.h, fn=fn, zeta=zeta)
+            self._cache_key, self._cache = key, state
+            return state
+        scale = np.sqrt(np.maximum(np.einsum("spp->sp", normal), 0.0))
+        scale[scale == 0] = 1.0
+        factors, coef = [], np.zeros((self.n_slots, p))
+        for s in range(self.n_slots):
+            ns = normal[s] / np.outer(scale[s], scale[s])
+            ns[np.diag_indices(p)] += 1e-12  # relative ridge (the scaled diagonal is one)
+            try:
+                fac = ("chol", cho_factor(ns, check_finite=False))
+            except np.linalg.LinAlgError:
+                fac = ("pinv", np.linalg.pinv(ns))
+            factors.append(fac)
+            coef[s] = self._apply(fac, rhs[s] / scale[s]) / scale[s]
+        model = coef[self.slots] @ gr.T + 1j * (coef[self.slots] @ gi.T)  # (n_e, n_freq)
+        r = self.wt * (self.h - model)
+        state = dict(basis=basis, gr=gr, gi=gi, coef=coef, factors=factors, col_scale=scale, r=r, fn=fn, zeta=zeta)
+        self._cache_key, self._cache = key, state
+        return state
+
+    @staticmethod
+    def _apply(fac, b):
+        from scipy.linalg import cho_solve
+
+        kind, m = fac
+        return cho_solve(m, b, check_finite=False) if kind == "chol" else m @ b
+
+    def _solve_normal(self, st, rhs):
+        """``N_s^-1 rhs[..., s, :]`` for every slot; rhs shape (k, n_slots, p)."""
+        out = np.empty_like(rhs)
+        for s in range(self.n_slots):
+            sc = st["col_scale"][s]
+            out[:, s, :] = (self._apply(st["factors"][s], (rhs[:, s, :] / sc).T).T) / sc
+        return out
 
     def solve(self, fn, zeta):
-        a = self.design(fn, zeta)
-        coef = lstsq_normal(a, self.y)
-        return coef, self.y - a @ coef
+        """Linear coefficients (flat, size n_slots * p) and the stacked residual at the poles."""
+        st = self._state(fn, zeta)
+        r = st["r"]
+        return st["coef"].ravel(), np.concatenate([r.real.ravel(), r.imag.ravel()])
+
+    def residual_theta(self, theta):
+        return self.solve(*_untheta(theta))[1]
+
+    def jacobian_theta(self, theta):
+        """Exact variable-projection Jacobian of the stacked residual w.r.t. (log fn, log zeta)."""
+        fn, zeta = _untheta(theta)
+        st = self._state(fn, zeta)
+        n = fn.size
+        basis, gr, gi, coef, r = st["basis"], st["gr"], st["gi"], st["coef"], st["r"]
+        n_e, nf = r.shape
+        wr = hz_to_rad_s(fn)[:, None]
+        w = self.w_rad[None, :]
+        b2 = basis**2
+        # d basis / d log fn = -basis^2 (2 wr^2 + 2 i zeta wr w); d basis / d log zeta = -basis^2 (2 i zeta wr w)
+        d_damp = -b2 * (2j * zeta[:, None] * wr * w)
+        d_freq = -b2 * (2.0 * wr**2) + d_damp
+        dbasis = np.concatenate([d_freq, d_damp])  # (2n, n_freq)
+        mode = np.concatenate([np.arange(n), np.arange(n)])
+        pm = self.per_mode
+        # numerator of mode m in each slot: A + i w B, shape (2n, n_slots, n_freq)
+        a_es = coef[self.slots][:, mode * pm].T  # (2n, n_e)
+        if self.complex_modes:
+            num = a_es[:, :, None] + coef[self.slots][:, mode * pm + 1].T[:, :, None] * (1j * self.w_rad)
+        else:
+            num = a_es[:, :, None]
+        # v = (dA/dtheta) c, per entry: w_e * dbasis * num_slot(e); shape (2n, n_e, n_freq)
+        v = (self.wt[None, :, :] * dbasis[:, None, :]) * num
+        # A^T v per slot: sum_e Re(G^H w_e v_e)
+        wv = (self._slot_sum @ (self.wt[None] * v)).reshape(-1, nf)  # (2n * n_slots, n_freq)
+        atv = (wv.real @ gr + wv.imag @ gi).reshape(2 * n, self.n_slots, -1)  # (2n, n_slots, p)
+        # (dA/dtheta)^T r per slot: only the columns of mode m are non-zero
+        wrr = self._slot_sum @ (self.wt * r)
+        dtr = np.zeros_like(atv)
+        k_all = np.arange(2 * n)
+        dtr[k_all, :, mode * pm] = dbasis.real @ wrr.real.T + dbasis.imag @ wrr.imag.T
+        if self.complex_modes:
+            db = 1j * self.w_rad * dbasis
+            dtr[k_all, :, mode * pm + 1] = db.real @ wrr.real.T + db.imag @ wrr.imag.T
+        x = self._solve_normal(st, atv - dtr)[:, self.slots, :].reshape(2 * n * n_e, -1)  # (2n n_e, p)
+        proj = (x @ gr.T + 1j * (x @ gi.T)).reshape(2 * n, n_e, nf)
+        jac_c = (-v + self.wt[None] * proj).reshape(2 * n, -1)
+        return np.concatenate([jac_c.real, jac_c.imag], axis=1).T
 
     def unpack(self, coef, n_modes):
-        per_mode = 2 if self.complex_modes else 1
-        k = 0
-        res = np.zeros((n_modes, self.n_slots))
-        res_i = np.zeros((n_modes, self.n_slots))
-        for r in range(n_modes):
-            res[r] = coef[k : k + self.n_slots]
-            k += self.n_slots
-            if self.complex_modes:
-                res_i[r] = coef[k : k + self.n_slots]
-                k += self.n_slots
-        up = np.zeros(self.n_slots)
-        lo = np.zeros(self.n_slots)
-        if self.upper:
-            up = coef[k : k + self.n_slots]
-            k += self.n_slots
-        if self.lower:
-            lo = coef[k : k + self.n_slots]
+        coef = np.asarray(coef).reshape(self.n_slots, -1)
+        pm = self.per_mode
+        res = coef[:, 0 : n_modes * pm : pm].T
+        res_i = coef[:, 1 : n_modes * pm : pm].T if self.complex_modes else np.zeros((n_modes, self.n_slots))
+        k = n_modes * pm
+        up = coef[:, k] if self.upper else np.zeros(self.n_slots)
+        lo = coef[:, k + int(self.upper)] if self.lower else np.zeros(self.n_slots)
         return res[:, self.slots], res_i[:, self.slots], up[self.slots], lo[self.slots]
+
+    def n_parameters(self, n_modes):
+        """Linear and nonlinear parameters of a fit with ``n_modes`` modes."""
+        return self.n_slots * (n_modes * self.per_mode + self._fixed.shape[1]) + 2 * n_modes
 
 
 def _theta(fn, zeta):
@@ -477,6 +348,9 @@ def fit_poles_residues(
     max_damping: float = 0.5,
 ) -> PoleResidueFit:
     """Refine poles and residues of FRFs by weighted nonlinear least squares (variable projection).
+
+    The natural frequencies stay inside the band of ``freq_hz``: a resonance is identified from
+    the lines around it, and dynamics outside the band are what the residual terms are for.
 
     Parameters
     ----------
@@ -511,65 +385,210 @@ def fit_poles_residues(
     z0 = np.clip(np.atleast_1d(np.asarray(damping_ratio, dtype=float)), 1e-4, max_damping * 0.99)
     n_modes = fn0.size
     if n_modes:
-        lo = np.concatenate([np.full(n_modes, np.log(max(f.min(), 1e-3) * 0.5)), np.full(n_modes, np.log(1e-4))])
-        hi = np.concatenate([np.full(n_modes, np.log(f.max() * 2.0)), np.full(n_modes, np.log(max_damping))])
-        th0 = np.clip(_theta(fn0, z0), lo + 1e-9, hi - 1e-9)
-        sol = optimize.least_squares(lambda th: prob.solve(*_untheta(th))[1], th0, bounds=(lo, hi),
+        f_lo = max(float(f.min()), 1e-3)
+        lo = np.concatenate([np.full(n_modes, np.log(f_lo)), np.full(n_modes, np.log(1e-4))])
+        hi = np.concatenate([np.full(n_modes, np.log(max(float(f.max()), f_lo * (1 + 1e-6)))),
+                             np.full(n_modes, np.log(max_damping))])
+        th0 = np.clip(_theta(np.maximum(fn0, 1e-3), z0), lo + 1e-9, hi - 1e-9)
+        sol = optimize.least_squares(prob.residual_theta, th0, jac=prob.jacobian_theta, bounds=(lo, hi),
                                      x_scale=np.concatenate([np.full(n_modes, 0.01), np.full(n_modes, 0.1)]),
                                      xtol=1e-10, ftol=1e-12, max_nfev=40 * (n_modes + 1))
         fn, zeta = _untheta(sol.x)
-        success, message = bool(sol.success), str(sol.message)
+        success, message = bool(sol.status > 0), str(sol.message)
     else:
         fn, zeta = fn0, z0
         success, message = True, "no modes"
+    return _pole_residue_result(prob, h, wt, fn, zeta, success, message)
+
+
+def _pole_residue_result(prob, h, wt, fn, zeta, success, message) -> PoleResidueFit:
     order = np.argsort(fn)
     fn, zeta = fn[order], zeta[order]
     coef, resid = prob.solve(fn, zeta)
     res, res_i, up, low = prob.unpack(coef, fn.size)
-    n_lin = coef.size
     fit = PoleResidueFit(
         natural_frequency_hz=fn, damping_ratio=zeta, residues=res, residues_imag=res_i,
         upper_residual=up, lower_residual=low, fit_error=np.zeros(h.shape[0]),
-        rss=float(resid @ resid), n_data=int(2 * h.size), n_parameters=int(n_lin + 2 * fn.size),
+        rss=float(resid @ resid), n_data=int(2 * h.size), n_parameters=prob.n_parameters(fn.size),
         success=success, message=message,
     )
-    err = relative_fit_error(h, fit.evaluate(f), wt)
+    err = relative_fit_error(h, fit.evaluate(prob.f), wt)
     return PoleResidueFit(**{**fit.__dict__, "fit_error": err})
+
+
+# =============================================================================== which modes are real
+def modal_phase_collinearity(residues) -> np.ndarray:
+    """Modal phase collinearity (MPC) of complex residue (or mode-shape) vectors.
+
+    ``MPC = ((l1 - l2) / (l1 + l2))^2`` with ``l1 >= l2`` the eigenvalues of the 2 x 2 matrix of
+    the real and imaginary parts' inner products (Pappa, Elliott & Schenk 1993): 1 when every
+    component has the same phase up to 180 degrees (a real mode shape, whatever its common phase),
+    towards 0 when the phases scatter, which the residues of a lightly damped structure's mode do
+    not do.
+
+    Parameters
+    ----------
+    residues : array_like, shape (n_modes, n_components), complex
+
+    Returns
+    -------
+    ndarray, shape (n_modes,)
+    """
+    r = np.array(residues, dtype=complex, ndmin=2)
+    x = np.stack([r.real, r.imag], axis=-1)  # (n_modes, n_components, 2)
+    s2 = np.linalg.svd(x, compute_uv=False) ** 2
+    total = s2.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mpc = ((s2[:, 0] - s2[:, -1]) / total) ** 2
+    return np.where(total > 0, mpc, 1.0)
+
+
+def _effective_fraction(resid, n_sequences) -> float:
+    """``1 / tau``: the share of independent values in residual sequences along frequency.
+
+    ``tau = 1 + 2 sum_k rho_k`` is the integrated autocorrelation time of the residuals (their
+    autocorrelation ``rho_k`` pooled over the sequences), summed by Geyer's initial positive
+    sequence: pairs ``rho_2m + rho_2m+1`` up to the first that is not positive, where the
+    estimate turns to noise (Geyer 1992). White residuals give ``tau = 1``; residuals of a
+    windowed spectral estimate (adjacent Welch lines are correlated) or of a model that misses a
+    smooth systematic error give ``tau > 1``, and an information criterion that counted every
+    line as independent would buy modes with them.
+
+    References
+    ----------
+    C. J. Geyer, "Practical Markov chain Monte Carlo", Statistical Science 7 (1992) 473-483.
+    """
+    x = np.asarray(resid, dtype=float).reshape(n_sequences, -1)
+    n = x.shape[1]
+    if n < 4:
+        return 1.0
+    x = x - x.mean(axis=1, keepdims=True)
+    nfft = 1 << int(np.ceil(np.log2(2 * n)))
+    spec = np.fft.rfft(x, nfft, axis=1)
+    acov = np.fft.irfft(np.abs(spec) ** 2, nfft, axis=1)[:, :n].sum(axis=0)
+    if acov[0] <= 0:
+        return 1.0
+    rho = acov / acov[0]
+    pairs = rho[: 2 * (n // 2)].reshape(-1, 2).sum(axis=1)  # rho_2m + rho_2m+1
+    stop = np.flatnonzero(pairs <= 0)
+    pairs = pairs[: stop[0]] if stop.size else pairs
+    tau = -1.0 + 2.0 * float(np.sum(pairs))
+    return float(1.0 / min(max(tau, 1.0), n))
+
+
+def _bic(rss, n_parameters, n_data, fraction=1.0) -> float:
+    """BIC of a Gaussian fit with ``fraction * n_data`` independent values (Schwarz 1978)."""
+    n_eff = max(fraction * n_data, 1.0)
+    return float(n_eff * np.log(max(rss, 1e-300) / n_data) + n_parameters * np.log(n_eff))
+
+
+def _unphysical(fit: PoleResidueFit, f, slots, *, min_mpc: float, max_damping: float) -> np.ndarray:
+    """Modes that are no resonance of the band's data, as a boolean mask.
+
+    - out of band: the natural frequency is not at least half a line inside the fitted lines
+      (a pole pinned at the band's edge models out-of-band dynamics, the residual terms' job);
+    - pinned at the damping bound (within 1 %): an optimum on the bound is no estimate, and a
+      pole that damped has no resonance peak; it stands in for a smooth trend;
+    - complex residues whose phases scatter (MPC below ``min_mpc``, where two or more distinct
+      slots are fitted): no real mode shape produces them; such a pole absorbs model error.
+    """
+    fn = fit.natural_frequency_hz
+    df = float(np.median(np.diff(f))) if f.size > 1 else 0.0
+    bad = (fn <= f.min() + 0.5 * df) | (fn >= f.max() - 0.5 * df) | (fit.damping_ratio >= 0.99 * max_damping)
+    _, first = np.unique(slots, return_index=True)
+    if first.size >= 2 and np.any(fit.residues_imag):
+        wr = hz_to_rad_s(fn)[:, None]
+        res = fit.residues[:, first] + 1j * wr * fit.residues_imag[:, first]
+        bad |= modal_phase_collinearity(res) < min_mpc
+    return bad
+
+
+def _select_modes(f, h, wt, slots, fit: PoleResidueFit, *, upper_residual, lower_residual, complex_modes,
+                  max_damping, min_mpc):
+    """Drop unphysical modes, then modes that do not lower the BIC; returns (fit, dropped_hz)."""
+    prob = _PoleResidueProblem(f, h, wt, slots, upper=upper_residual, lower=lower_residual,
+                               complex_modes=complex_modes)
+    opts = dict(weights=wt, slots=slots, upper_residual=upper_residual, lower_residual=lower_residual,
+                complex_modes=complex_modes, max_damping=max_damping)
+    n_data = prob.n_data
+    dropped = []
+    fraction = None
+    while fit.n_modes:
+        bad = _unphysical(fit, f, slots, min_mpc=min_mpc, max_damping=max_damping)
+        if np.all(bad):
+            # nothing in the band passes: keep the fit, and say it is not a physical one
+            fit = dataclasses.replace(fit, success=False, message=(
+                "no mode passes the checks (resonance inside the band, damping below its bound, "
+                "collinear residues): the poles are not physical modes"))
+            break
+        if np.any(bad):
+            dropped.extend(float(x) for x in fit.natural_frequency_hz[bad])
+            fit = fit_poles_residues(f, h, fit.natural_frequency_hz[~bad], fit.damping_ratio[~bad], **opts)
+            continue
+        if fraction is None:
+            # the noise model: correlation of the residuals of the largest physical fit
+            fraction = _effective_fraction(prob.solve(fit.natural_frequency_hz, fit.damping_ratio)[1],
+                                           2 * h.shape[0])
+        current = _bic(fit.rss, fit.n_parameters, n_data, fraction)
+        if fit.n_modes < 2:
+            # the last mode must beat the residual terms alone; if it does not, it is kept (a
+            # model needs a mode) and the fit says it is not significant
+            _, resid = prob.solve(np.zeros(0), np.zeros(0))
+            if _bic(float(resid @ resid), prob.n_parameters(0), n_data, fraction) <= current:
+                fit = dataclasses.replace(fit, success=False, message=(
+                    "the only mode left does not lower the information criterion below that of the "
+                    "residual terms alone: it is not significant"))
+            break
+        # screen every removal with the other (refined) poles held, then refit the best one
+        scores = []
+        for r in range(fit.n_modes):
+            keep = np.arange(fit.n_modes) != r
+            _, resid = prob.solve(fit.natural_frequency_hz[keep], fit.damping_ratio[keep])
+            scores.append(_bic(float(resid @ resid), prob.n_parameters(fit.n_modes - 1), n_data, fraction))
+        r = int(np.argmin(scores))
+        if scores[r] >= current:
+            break
+        keep = np.arange(fit.n_modes) != r
+        cand = fit_poles_residues(f, h, fit.natural_frequency_hz[keep], fit.damping_ratio[keep], **opts)
+        if _bic(cand.rss, cand.n_parameters, n_data, fraction) >= current:
+            break
+        dropped.append(float(fit.natural_frequency_hz[r]))
+        fit = cand
+    return fit, dropped
 
 
 @blas_single_threaded
 def prune_modes(freq_hz, frf, fit: PoleResidueFit, *, weights=None, slots=None, upper_residual: bool = True,
-                lower_residual: bool = False, complex_modes: bool = False, max_damping: float = 0.5) -> PoleResidueFit:
-    """Drop modes of a :func:`fit_poles_residues` result that do not lower the BIC.
+                lower_residual: bool = False, complex_modes: bool = False, max_damping: float = 0.5,
+                min_mpc: float = 0.5) -> PoleResidueFit:
+    """Keep the modes of a :func:`fit_poles_residues` result that the data support.
 
-    Each round screens every removal with the other poles held (linear least squares only),
-    refits the best candidate by nonlinear least squares and keeps it if its BIC is lower.
-    Arguments as in :func:`fit_poles_residues`.
+    A mode must be a resonance of the band (natural frequency inside the fitted lines), have a
+    real mode shape where several slots share its pole (modal phase collinearity of its complex
+    residues at least ``min_mpc``, see :func:`modal_phase_collinearity`), and earn its parameters:
+    removing it must raise the Bayesian information criterion, counted with the effective number
+    of independent residuals (their autocorrelation along frequency, see
+    :func:`_effective_fraction`), not every line as if the errors were white. Each round screens
+    every removal with the other poles held (linear least squares only), refits the best
+    candidate by nonlinear least squares and keeps it if its BIC is lower.
+
+    At least one mode is returned: when no mode passes the checks, or the last one does not beat
+    the residual terms alone, it is kept and the result has ``success=False`` and says why in
+    ``message``. Other arguments as in :func:`fit_poles_residues`.
+
+    Returns
+    -------
+    PoleResidueFit
     """
     f = np.asarray(freq_hz, dtype=float)
     h = np.array(frf, dtype=complex, ndmin=2)
     wt = np.ones(h.shape) if weights is None else np.array(np.broadcast_to(weights, h.shape), dtype=float)
+    wt = np.where(np.isfinite(wt), wt, 0.0)
     slots = np.arange(h.shape[0]) if slots is None else np.asarray(slots, dtype=int)
-    prob = _PoleResidueProblem(f, h, wt, slots, upper=upper_residual, lower=lower_residual, complex_modes=complex_modes)
-    n_data = 2 * h.size
-    while fit.n_modes > 1:
-        scores = []
-        for r in range(fit.n_modes):
-            keep = np.arange(fit.n_modes) != r
-            coef, resid = prob.solve(fit.natural_frequency_hz[keep], fit.damping_ratio[keep])
-            rss = float(resid @ resid)
-            scores.append(n_data * np.log(max(rss, 1e-300) / n_data) + (coef.size + 2 * int(keep.sum())) * np.log(n_data))
-        r = int(np.argmin(scores))
-        if scores[r] >= fit.bic:
-            break
-        keep = np.arange(fit.n_modes) != r
-        cand = fit_poles_residues(f, h, fit.natural_frequency_hz[keep], fit.damping_ratio[keep], weights=weights,
-                                  slots=slots, upper_residual=upper_residual, lower_residual=lower_residual,
-                                  complex_modes=complex_modes, max_damping=max_damping)
-        if cand.bic >= fit.bic:
-            break
-        fit = cand
+    fit, _ = _select_modes(f, h, wt, slots, fit, upper_residual=upper_residual, lower_residual=lower_residual,
+                           complex_modes=complex_modes, max_damping=max_damping, min_mpc=min_mpc)
     return fit
+
 
 
 # =============================================================================== modal model
@@ -588,7 +607,8 @@ class ModalFit:
     pole_residue : PoleResidueFit
         The unconstrained (free residue) fit that preceded the ModalModel fit.
     dropped_modes_hz : tuple of float
-        Candidate modes removed by the information criterion.
+        Candidate modes removed by the selection (out of band, pinned at the damping bound, or
+        not lowering the information criterion).
     success : bool
     message : str
     """
@@ -667,57 +687,89 @@ def _residue_modes(entries, residues_r, omega_r, *, max_modes: int = 3, min_rati
 
 
 def _modal_nlls(freq, h, wt, entries, slots, model0: ModalModel, *, residual: bool, max_damping: float):
-    """Fit the ModalModel form (rank-one residues) by variable projection over (fn, zeta, phi)."""
+    """Fit the ModalModel form (rank-one residues) by variable projection over (fn, zeta, phi).
+
+    Entry ``(o, i)`` is ``sum_r phi_ro phi_ri / (w_r^2 - w^2 + 2 i zeta_r w_r w)`` plus a real
+    residual compliance per slot, projected out exactly (it enters linearly and its column does
+    not depend on the nonlinear parameters). The Jacobian is analytic.
+    """
     n = model0.n_modes
     rows = sorted({o for o, _ in entries} | {i for _, i in entries})
+    nr = len(rows)
+    o_idx = np.array([rows.index(o) for o, _ in entries])
+    i_idx = np.array([rows.index(i) for _, i in entries])
     phi0 = model0.directions / np.sqrt(model0.modal_mass_kg)[:, None]  # u / sqrt(m)
     n_e = len(entries)
     y = np.concatenate([(wt * h).real.ravel(), (wt * h).imag.ravel()])
     y_scale = float(np.sqrt(np.mean(y**2))) or 1.0
     wt = wt / y_scale
-    y = y / y_scale
+    wh = wt * h
     n_slots = int(slots.max()) + 1
+    slot_sum = (np.asarray(slots)[None, :] == np.arange(n_slots)[:, None]).astype(float)  # (n_slots, n_e)
+    col_norm2 = slot_sum @ np.sum(wt**2, axis=1)
+    col_norm2 = np.where(col_norm2 > 0, col_norm2, 1.0)
+    # one-hot derivatives of phi_ro phi_ri with respect to phi_rj: (nr, n_e) masks
+    at_o = (o_idx[None, :] == np.arange(nr)[:, None]).astype(float)
+    at_i = (i_idx[None, :] == np.arange(nr)[:, None]).astype(float)
 
     def split(th):
-        fn = np.exp(th[:n])
-        z = np.exp(th[n : 2 * n])
-        phi = np.zeros((n, 3))
-        phi[:, rows] = th[2 * n :].reshape(n, len(rows))
-        return fn, z, phi
+        return np.exp(th[:n]), np.exp(th[n : 2 * n]), th[2 * n :].reshape(n, nr)
 
-    def model_part(fn, z, phi):
-        basis = modal_basis(freq, fn, z)
-        out = np.zeros((n_e, freq.size), dtype=complex)
-        for e, (o, i) in enumerate(entries):
-            out[e] = np.sum((phi[:, o] * phi[:, i])[:, None] * basis, axis=0)
-        return out
+    def project(v_real):
+        """Remove the residual-compliance columns from the real parts, shape (..., n_e, n_freq)."""
+        coef = (np.sum(wt * v_real, axis=-1) @ slot_sum.T) / col_norm2  # (..., n_slots)
+        return v_real - coef[..., slots][..., None] * wt, coef
 
-    design_res = np.zeros((n_e, freq.size, n_slots))
-    for e in range(n_e):
-        design_res[e, :, slots[e]] = 1.0
-    design_res *= wt[:, :, None]
-    a_res = np.vstack([design_res.reshape(-1, n_slots), np.zeros((n_e * freq.size, n_slots))])
+    cache = {}
 
-    def resid(th, return_coef=False):
-        fn, z, phi = split(th)
-        m = wt * model_part(fn, z, phi)
-        r = y - np.concatenate([m.real.ravel(), m.imag.ravel()])
-        coef = np.zeros(n_slots)
-        if residual:
-            coef = lstsq_normal(a_res, r)
-            r = r - a_res @ coef
-        return (r, coef) if return_coef else r
+    def state(th):
+        key = th.tobytes()
+        if key not in cache:
+            cache.clear()
+            fn, z, ph = split(th)
+            basis = modal_basis(freq, fn, z)  # (n, nf)
+            prod = ph[:, o_idx] * ph[:, i_idx]  # (n, n_e)
+            m = prod.T @ basis.real + 1j * (prod.T @ basis.imag)
+            rc = wh - wt * m
+            rr, coef = project(rc.real) if residual else (rc.real, np.zeros(n_slots))
+            cache[key] = (fn, z, ph, basis, prod, rr, rc.imag, coef)
+        return cache[key]
+
+    def resid(th):
+        *_, rr, ri, _ = state(th)
+        return np.concatenate([rr.ravel(), ri.ravel()])
+
+    def jac(th):
+        fn, z, ph, basis, prod, *_ = state(th)
+        wr = hz_to_rad_s(fn)[:, None]
+        w = hz_to_rad_s(freq)[None, :]
+        d_damp = -basis**2 * (2j * z[:, None] * wr * w)
+        d_freq = -basis**2 * (2.0 * wr**2) + d_damp
+        d = np.empty((n, 2 + nr, n_e, freq.size), dtype=complex)
+        d[:, 0] = prod[:, :, None] * d_freq[:, None, :]
+        d[:, 1] = prod[:, :, None] * d_damp[:, None, :]
+        # d(phi_ro phi_ri)/d phi_rj = [o = j] phi_ri + [i = j] phi_ro
+        dprod = at_o[None] * ph[:, i_idx][:, None, :] + at_i[None] * ph[:, o_idx][:, None, :]  # (n, nr, n_e)
+        d[:, 2:] = dprod[:, :, :, None] * basis[:, None, None, :]
+        # parameter order: log fn (n), log zeta (n), phi (n x nr)
+        cols = np.concatenate([d[:, 0], d[:, 1], d[:, 2:].reshape(n * nr, n_e, freq.size)])
+        cols = -wt[None] * cols
+        jr = project(cols.real)[0] if residual else cols.real
+        k = cols.shape[0]
+        return np.concatenate([jr.reshape(k, -1), cols.imag.reshape(k, -1)], axis=1).T
 
     th0 = np.concatenate([np.log(model0.natural_frequency_hz), np.log(np.clip(model0.damping_ratio, 1e-4, max_damping * 0.99)),
                           phi0[:, rows].ravel()])
-    lo = np.concatenate([np.log(model0.natural_frequency_hz) - 0.5, np.full(n, np.log(1e-4)), np.full(n * len(rows), -np.inf)])
-    hi = np.concatenate([np.log(model0.natural_frequency_hz) + 0.5, np.full(n, np.log(max_damping)), np.full(n * len(rows), np.inf)])
+    lo = np.concatenate([np.log(model0.natural_frequency_hz) - 0.5, np.full(n, np.log(1e-4)), np.full(n * nr, -np.inf)])
+    hi = np.concatenate([np.log(model0.natural_frequency_hz) + 0.5, np.full(n, np.log(max_damping)), np.full(n * nr, np.inf)])
     pscale = np.max(np.abs(phi0[:, rows])) if n else 1.0
-    x_scale = np.concatenate([np.full(n, 0.01), np.full(n, 0.1), np.full(n * len(rows), 0.1 * pscale)])
-    sol = optimize.least_squares(resid, np.clip(th0, lo + 1e-12, hi - 1e-12), bounds=(lo, hi), x_scale=x_scale,
-                                 xtol=1e-10, ftol=1e-12, max_nfev=100 * (len(th0) + 1))
-    r, coef = resid(sol.x, return_coef=True)
-    fn, z, phi = split(sol.x)
+    x_scale = np.concatenate([np.full(n, 0.01), np.full(n, 0.1), np.full(n * nr, 0.1 * pscale)])
+    sol = optimize.least_squares(resid, np.clip(th0, lo + 1e-12, hi - 1e-12), jac=jac, bounds=(lo, hi),
+                                 x_scale=x_scale, xtol=1e-10, ftol=1e-12, max_nfev=100 * (len(th0) + 1))
+    fn, z, ph, *_, coef = state(sol.x)
+    r = resid(sol.x)
+    phi = np.zeros((n, 3))
+    phi[:, rows] = ph
     return fn, z, phi, coef, float(r @ r), sol
 
 
@@ -756,7 +808,9 @@ def fit_modal_model(
     residual : bool
         Fit a residual compliance for the modes out of the band.
     select : bool
-        Drop modes that do not lower the BIC.
+        Keep only modes that are resonances of the band and lower the BIC (counted with the
+        residuals' autocorrelation, see :func:`prune_modes`). When no candidate passes, the best
+        one is kept and the result has ``success=False`` with the reason in ``message``.
     per_entry_poles : bool
         Add the two most stable poles of each direct entry's own diagram to the candidates (close
         modes along different axes, merged by the common denominator).
@@ -838,25 +892,10 @@ def fit_modal_model(
             fn0, z0, current = np.delete(fn0, r), np.delete(z0, r), scores[r]
     pr = fit_poles_residues(f, h, fn0, z0, weights=wt, slots=slots, upper_residual=residual, max_damping=max_damping)
     if select and n_modes is None:
-        prob = _PoleResidueProblem(f, h, wt, slots, upper=residual, lower=False, complex_modes=False)
-        n_data = 2 * h.size
-        while pr.n_modes > 1:
-            # screen removals with the other (refined) poles held, then refit the best one
-            scores = []
-            for r in range(pr.n_modes):
-                keep = np.arange(pr.n_modes) != r
-                coef, resid = prob.solve(pr.natural_frequency_hz[keep], pr.damping_ratio[keep])
-                rss = float(resid @ resid)
-                n_par = coef.size + 2 * int(np.sum(keep))
-                scores.append(n_data * np.log(max(rss, 1e-300) / n_data) + n_par * np.log(n_data))
-            r = int(np.argmin(scores))
-            if scores[r] >= pr.bic:
-                break
-            keep = np.arange(pr.n_modes) != r
-            cand = fit_poles_residues(f, h, pr.natural_frequency_hz[keep], pr.damping_ratio[keep], weights=wt,
-                                      slots=slots, upper_residual=residual, max_damping=max_damping)
-            dropped.append(float(pr.natural_frequency_hz[r]))
-            pr = cand
+        # out-of-band and damping-pinned poles, then the BIC with the residuals' correlation
+        pr, more = _select_modes(f, h, wt, slots, pr, upper_residual=residual, lower_residual=False,
+                                 complex_modes=False, max_damping=max_damping, min_mpc=0.0)
+        dropped.extend(more)
     # initial ModalModel from the rank-one part of the residues
     freqs, zetas, ks, dirs = [], [], [], []
     for r in range(pr.n_modes):
@@ -894,5 +933,5 @@ def fit_modal_model(
     return ModalFit(
         model=model, fit_error=err, band_hz=(float(f.min()), float(f.max())), diagram=diagram, pole_residue=pr,
         dropped_modes_hz=tuple(dropped), success=bool(sol.success and pr.success),
-        message=str(sol.message),
+        message=str(sol.message) if pr.success else f"{pr.message}; {sol.message}",
     )

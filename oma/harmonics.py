@@ -22,7 +22,7 @@ from ._arrays import readonly as _ro
 from scipy import optimize
 from scipy import signal as sps
 
-from .fit import lstsq_normal
+from ._linalg import lstsq_normal
 from .spectra import default_nperseg
 
 __all__ = [

@@ -7,7 +7,8 @@ Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
 2. Background force variance per axis from the force PSD with the harmonics removed.
 3. FRF: multiple-input H1 from pooled Welch spectra of all records, harmonic lines left out, with
    coherence and random-error bands (:mod:`oma.frf_estimate`).
-4. Modal fit of the H1 FRF: stabilisation diagram, nonlinear least squares, BIC (:mod:`oma.fit`).
+4. Modal fit of the H1 FRF: stabilisation diagram (:mod:`oma.lscf`), nonlinear least squares, BIC
+   (:mod:`oma.fit`).
    With ``method='h1'`` this is the answer (the paper's estimator plus a fit).
 5. ``method='default'``: time-domain fit of the modal model to the measured force and displacement,
    started from step 4, with the exact likelihood of a quantised (tracker) displacement
@@ -27,7 +28,8 @@ import numpy as np
 from ._arrays import readonly as _ro
 from .detectability import Detectability, detectability
 from .errors import RecordError
-from .fit import ModalFit, fit_modal_model, relative_fit_error, single_threaded_blas
+from ._linalg import single_threaded_blas
+from .fit import ModalFit, fit_modal_model, relative_fit_error
 from .frf_estimate import FRFEstimate, estimate_frf, frf_agreement
 from .frf_table import FRFTable
 from .harmonics import BackgroundEstimate, Harmonics, background_variance, find_harmonics, fit_harmonic_signal
@@ -196,6 +198,14 @@ class Identification:
         return [self.plot_frf(reference, **kwargs), self.plot_force_spectrum(), self.plot_detectability()]
 
 
+def _force_error_variance(record: Record) -> float:
+    """Variance of a record's force error per sample, N^2: sensor noise plus rounding ``q^2 / 12``."""
+    s = record.sensors
+    if s is None:
+        return 0.0
+    return (s.force_noise_variance_N2 or 0.0) + (s.force_resolution_N or 0.0) ** 2 / 12.0
+
+
 def _fit_band(est: FRFEstimate, fs: float) -> tuple[float, float]:
     """Lines worth fitting: from the first line up to 2.5 times the highest coherent line.
 
@@ -338,6 +348,7 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         try:
             tfit = fit_time_domain(
                 signals, harmonics, start if resolved else None, search=not resolved,
+                force_noise_variance_N2=[_force_error_variance(r) for r in records],
                 source={"method": "oma-time-domain", "records": names},
             )
         except NoModeFound as exc:  # no mode at all: nothing in the records but rounding noise

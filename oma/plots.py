@@ -23,8 +23,42 @@ def _new_axes(n_rows, n_cols, axes=None, **kw):
     return fig, axes
 
 
+def _wrap_near(phase_deg, guide_deg):
+    """Each phase moved by a multiple of 360 degrees to within 180 degrees of the guide."""
+    return guide_deg + (np.asarray(phase_deg) - guide_deg + 180.0) % 360.0 - 180.0
+
+
+def _unwrapped_near(h, guide_deg):
+    """Unwrapped phase of ``h`` (degrees), shifted as a whole by the multiple of 360 degrees
+    that brings it closest (in the median) to the guide curve sampled at the same lines."""
+    ph = np.degrees(np.unwrap(np.angle(h)))
+    if ph.size == 0:
+        return ph
+    return ph - 360.0 * np.round(np.median(ph - guide_deg) / 360.0)
+
+
+def _model_grid(lo, hi, model, n_min=800, n_max=20000):
+    """Lines for drawing a model: fine enough that the phase of its sharpest mode is followed
+    (a quarter of the narrowest half-power bandwidth ``2 zeta f_n``), between ``n_min`` and ``n_max``."""
+    n = n_min
+    fn, z = getattr(model, "natural_frequency_hz", None), getattr(model, "damping_ratio", None)
+    if fn is not None and np.size(fn):
+        bw = float(np.min(2.0 * np.asarray(z) * np.asarray(fn)))
+        if bw > 0:
+            n = int(min(max(n_min, 4.0 * (hi - lo) / bw), n_max))
+    return np.linspace(max(lo, 1e-3), hi, n)
+
+
 def plot_frf_comparison(identification, reference=None, *, axes=None, freq_range_hz=None, n_sigma: float = 2.0):
     """Identified versus reference receptance per axis: magnitude, phase and coherence.
+
+    A measured reference (an :class:`~oma.frf_table.FRFTable`) is drawn on its own lines inside
+    the plotted range, never interpolated or extended beyond its band; a modal-model reference is
+    evaluated on a fine grid. Phases are unwrapped along frequency, not cut at +-180 degrees: the
+    identified model's curve is unwrapped from its lowest line, a reference curve is unwrapped and
+    shifted by the multiple of 360 degrees that lays it on the model's branch, and each point of
+    the H1 estimate is drawn on the branch within 180 degrees of the model (its phase is only
+    defined modulo 360 degrees, and its random error would otherwise throw it across the cut).
 
     Parameters
     ----------
@@ -48,30 +82,41 @@ def plot_frf_comparison(identification, reference=None, *, axes=None, freq_range
     f = table.freq_hz
     lo, hi = freq_range_hz if freq_range_hz is not None else (f.min(), min(f.max(), 100.0))
     sel = (f >= lo) & (f <= hi)
-    fine = np.linspace(max(lo, 1e-3), hi, 800)
+    fine = _model_grid(lo, hi, identification.model)
     g_model = identification.model.receptance(fine)
-    g_ref = None
+    ref_lines = None  # (freq_hz, receptance (3, 3, n), measured (3, 3)) of the reference
     if reference is not None:
-        g_ref = reference.receptance(fine)
+        if hasattr(reference, "freq_hz") and hasattr(reference, "receptance_m_N"):
+            # a measured table: its own lines in the plotted range, no interpolation
+            rf = np.asarray(reference.freq_hz)
+            rsel = (rf >= lo) & (rf <= hi)
+            ref_lines = (rf[rsel], np.asarray(reference.receptance_m_N)[:, :, rsel], np.asarray(reference.measured))
+        else:
+            fine_ref = _model_grid(lo, hi, reference)
+            ref_lines = (fine_ref, reference.receptance(fine_ref), np.ones((3, 3), dtype=bool))
     band_lo, band_hi = est.magnitude_band(n_sigma=n_sigma)
     for c, a in enumerate(measured):
         h = table.receptance_m_N[a, a]
+        model_phase = np.degrees(np.unwrap(np.angle(g_model[a, a])))
         ax[0, c].fill_between(f[sel], band_lo[a, a, sel], band_hi[a, a, sel], color="C0", alpha=0.2, lw=0,
                               label=f"H1 +-{n_sigma:g} sigma")
         ax[0, c].semilogy(f[sel], np.abs(h[sel]), ".", color="C0", ms=3, label="H1 estimate")
         ax[0, c].semilogy(fine, np.abs(g_model[a, a]), "-", color="C1", label="identified model")
-        ax[1, c].plot(f[sel], np.degrees(np.angle(h[sel])), ".", color="C0", ms=3)
-        ax[1, c].plot(fine, np.degrees(np.angle(g_model[a, a])), "-", color="C1")
-        if g_ref is not None:
-            ax[0, c].semilogy(fine, np.abs(g_ref[a, a]), "--", color="k", label="reference")
-            ax[1, c].plot(fine, np.degrees(np.angle(g_ref[a, a])), "--", color="k")
+        h1_phase = _wrap_near(np.degrees(np.angle(h[sel])), np.interp(f[sel], fine, model_phase))
+        ax[1, c].plot(f[sel], h1_phase, ".", color="C0", ms=3, label="H1 estimate")
+        ax[1, c].plot(fine, model_phase, "-", color="C1", label="identified model")
+        if ref_lines is not None and ref_lines[2][a, a] and ref_lines[0].size:
+            rf, rg = ref_lines[0], ref_lines[1][a, a]
+            ax[0, c].semilogy(rf, np.abs(rg), "--", color="k", label="reference")
+            ax[1, c].plot(rf, _unwrapped_near(rg, np.interp(rf, fine, model_phase)), "--", color="k",
+                          label="reference")
         if table.coherence is not None:
             ax[2, c].plot(f[sel], table.coherence[a, a, sel], "-", color="C0", label="ordinary")
         ax[2, c].plot(f[sel], identification.frf_estimate.multiple_coherence[a, sel], "-", color="C2",
                       label="multiple")
         ax[0, c].set_title(f"{AXES[a]}{AXES[a]}")
         ax[0, c].set_ylabel("|G| (m/N)")
-        ax[1, c].set_ylabel("phase (deg)")
+        ax[1, c].set_ylabel("phase (deg, unwrapped)")
         ax[2, c].set_ylabel("coherence")
         ax[2, c].set_ylim(0, 1.05)
         ax[2, c].set_xlabel("frequency (Hz)")

@@ -30,9 +30,11 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from scipy import signal as sps
 from scipy import special
 
-from .fit import lstsq_normal
+from ._linalg import lstsq_normal
+from .synthetic import mode_filter
 
 __all__ = ["MIN_DAMPING", "interval_terms", "free_residue_ml", "modal_form_ml"]
 
@@ -83,6 +85,97 @@ def _weighted_gram(x, w):
     return np.triu(g) + np.triu(g, 1).T
 
 
+def _marquardt(state, f_now, curvature, move, *, max_iter, what):
+    """Levenberg-Marquardt minimisation of a negative log-likelihood.
+
+    ``curvature(state)`` gives the gradient and the Gauss-Newton Hessian at ``state``;
+    ``move(state, delta)`` the new state and its negative log-likelihood. A step that lowers the
+    objective is taken and the damping relaxed; otherwise the damping grows tenfold (at most 12
+    times). Converged when no step helps or one gains less than 0.02 (log-likelihood units: a
+    parameter change well below its standard error).
+
+    Returns the final state, its objective and whether it converged.
+    """
+    lam = 1e-3
+    for it in range(max_iter):
+        grad, hess = curvature(state)
+        for _ in range(12):
+            a = hess + lam * np.diag(np.diag(hess) + 1e-12)
+            try:
+                delta = -np.linalg.solve(a, grad)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            new, f_new = move(state, delta)
+            if f_new < f_now:
+                break
+            lam *= 10
+        else:
+            return state, f_now, True
+        gain = f_now - f_new
+        state, f_now = new, f_new
+        lam = max(lam / 10, 1e-9)
+        logger.debug("%s %d: -logL %.3f (gain %.3g)", what, it, f_now, gain)
+        if gain < 0.02:
+            return state, f_now, True
+    return state, f_now, False
+
+
+def _add_output_terms(hess, grad, js, lin, sl_lin, i_sig, y_k, pred_k, q, lsig_k):
+    """Add output ``k``'s interval-likelihood terms to the gradient and Gauss-Newton Hessian.
+
+    ``js`` (N, n_shared): derivatives of the output's prediction with respect to the shared
+    (nonlinear and cross-output) parameters; ``lin`` (N, K): its own linear columns, parameters
+    ``sl_lin``; ``i_sig`` the index of its log error scale.
+    """
+    n_sh = js.shape[1]
+    _, g, h, gs = interval_terms(y_k, pred_k, q, np.exp(lsig_k))
+    hess[:n_sh, :n_sh] += js.T @ (h[:, None] * js)
+    hb = lin.T @ (h[:, None] * js)
+    hess[sl_lin, :n_sh] = hb
+    hess[:n_sh, sl_lin] = hb.T
+    hess[sl_lin, sl_lin] = _weighted_gram(lin, h)
+    grad[:n_sh] += js.T @ g
+    grad[sl_lin] = lin.T @ g
+    grad[i_sig] = np.sum(gs)
+    hess[i_sig, i_sig] = np.sum(gs * gs) + 1e-9
+
+
+def _error_scale(res, q):
+    """Starting log error scale per output, and its floor.
+
+    A scale far below the grid makes the likelihood a set-membership indicator (every parameter
+    inside a polytope fits perfectly) and, where an output crosses a single rounding boundary, it
+    leaves the response's amplitude undetermined (a probit model identifies only amplitude /
+    scale). The floor here is 1 % of the grid; :func:`modal_form_ml` raises it to the response to
+    the force sensor's own noise (:func:`input_noise_scale`) when that is known.
+    """
+    lo = np.log(0.01 * q.min())
+    return np.maximum(np.log(np.maximum(np.sqrt(np.mean(res**2, axis=1)), 1e-300)), lo), lo
+
+
+def input_noise_scale(prob, fn, zeta, phi):
+    """Standard deviation of each output's response to the measured force's own noise, m.
+
+    The measured force is the true one plus white noise of variance ``v`` per sample
+    (``rec["force_noise"]``, N^2; the sensor's noise and its rounding), so the model driven by it
+    misses the true response by the response to that noise: ``v sum_j sum_t h_oj[t]^2`` with
+    ``h_oj = sum_r phi_ro phi_rj g_r`` the sampled impulse response (Parseval). None when no
+    record gives its force noise.
+    """
+    v = max((rec.get("force_noise") or 0.0) for rec in prob.records)
+    if v <= 0 or fn.size == 0:
+        return None
+    fs = prob.fs
+    # the slowest decay: eight time constants of the least damped mode
+    n = int(min(max(8.0 * fs / np.min(2 * np.pi * fn * np.maximum(zeta, MIN_DAMPING)), 16), 1 << 20))
+    impulse = np.zeros(n)
+    impulse[0] = 1.0
+    g = np.array([sps.lfilter(*mode_filter(f, z, fs), impulse) for f, z in zip(fn, zeta)])  # (n_m, n)
+    h = np.einsum("ro,rj,rt->ojt", phi, phi, g)
+    return np.sqrt(v * np.sum(h**2, axis=(1, 2)))
+
+
 def free_residue_ml(prob, fn, zeta, max_damping, *, max_iter=60):
     """Maximum likelihood of rounded displacement: Levenberg-Marquardt on all parameters.
 
@@ -99,42 +192,35 @@ def free_residue_ml(prob, fn, zeta, max_damping, *, max_iter=60):
     n_in = prob.n_in
     n_shared = n_m * n_in + (n_in if prob.residual else 0)
 
-    def design(fn_, z_):
-        return prob.full_design(fn_, z_)[0]
+    def design(th_):
+        return prob.full_design(np.exp(th_[:n_m]), np.exp(th_[n_m:]))[0]
 
     th = np.concatenate([np.log(fn), np.log(zeta)])
     lo = np.concatenate([np.log(fn) - 0.2, np.full(n_m, np.log(MIN_DAMPING))])
     hi = np.concatenate([np.log(fn) + 0.2, np.full(n_m, np.log(max_damping))])
-    x = design(fn, zeta)
+    x = design(th)
     scale = np.linalg.norm(x, axis=0)
     scale[scale == 0] = 1.0
     xs = x / scale
     beta = lstsq_normal(xs, y.T).T  # (n_out, K) in scaled units
-    lsig = np.log(np.maximum(np.sqrt(np.mean((y - beta @ xs.T) ** 2, axis=1)), 0.01 * q.min()))
-    # floor of the error scale: a scale far below the grid makes the likelihood a set-membership
-    # indicator (every parameter inside a polytope fits perfectly); 2 % of the grid is of the
-    # order of the response to a force sensor's own noise (0.3 um for the paper's cell)
-    lsig_lo = np.log(0.01 * q.min())
+    lsig, lsig_lo = _error_scale(y - beta @ xs.T, q)
+    n_th = th.size
+    k_lin = xs.shape[1]
+    n_par = n_th + n_out * (k_lin + 1)
 
     def total(xs_, beta_, lsig_):
         pred = beta_ @ xs_.T
         return sum(float(np.sum(interval_terms(y[k], pred[k], q, np.exp(lsig_[k]))[0])) for k in range(n_out))
 
-    f_now = total(xs, beta, lsig)
-    lam = 1e-3
-    n_th = th.size
-    k_lin = xs.shape[1]
-    n_par = n_th + n_out * (k_lin + 1)
-    converged = False
-    for it in range(max_iter):
-        beta_raw = beta / scale
+    def curvature(st):
+        th_, beta_, xs_, lsig_ = st
+        beta_raw = beta_ / scale
         jac = np.zeros((n_out, q.size, n_th))
-        fn_c, z_c = np.exp(th[:n_m]), np.exp(th[n_m:])
+        fn_c, z_c = np.exp(th_[:n_m]), np.exp(th_[n_m:])
         row, col_own = 0, n_shared
         step = 1e-6
         for rec in recs:
             n = rec["y"].shape[1]
-            k_own = 2 * n_m + rec["nuis"].shape[1]
             for m in range(n_m):
                 base_f, base_i = prob.mode_columns(rec, fn_c[m], z_c[m])
                 sh_cols = slice(m * n_in, (m + 1) * n_in)
@@ -146,52 +232,26 @@ def free_residue_ml(prob, fn, zeta, max_damping, *, max_iter=60):
                     contrib = ((d_f - base_f) @ beta_raw[:, sh_cols].T + (d_i - base_i) @ beta_raw[:, ic_cols].T) / step
                     jac[:, row : row + n, m + which * n_m] = contrib.T
             row += n
-            col_own += k_own
-        pred = beta @ xs.T
+            col_own += 2 * n_m + rec["nuis"].shape[1]
+        pred = beta_ @ xs_.T
         hess = np.zeros((n_par, n_par))
         grad = np.zeros(n_par)
         for k in range(n_out):
-            _, g, h, gs = interval_terms(y[k], pred[k], q, np.exp(lsig[k]))
-            jt = jac[k]
-            sl = slice(n_th + k * k_lin, n_th + (k + 1) * k_lin)
-            hess[:n_th, :n_th] += jt.T @ (h[:, None] * jt)
-            hb = xs.T @ (h[:, None] * jt)
-            hess[sl, :n_th] = hb
-            hess[:n_th, sl] = hb.T
-            hess[sl, sl] = _weighted_gram(xs, h)
-            grad[:n_th] += jt.T @ g
-            grad[sl] = xs.T @ g
-            js = n_th + n_out * k_lin + k
-            grad[js] = np.sum(gs)
-            hess[js, js] = np.sum(gs * gs) + 1e-9
-        improved = False
-        for _ in range(12):
-            a = hess + lam * np.diag(np.diag(hess) + 1e-12)
-            try:
-                delta = -np.linalg.solve(a, grad)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            th_new = np.clip(th + delta[:n_th], lo, hi)
-            beta_new = beta + delta[n_th : n_th + n_out * k_lin].reshape(n_out, k_lin)
-            lsig_new = np.maximum(lsig + np.clip(delta[n_th + n_out * k_lin :], -1.0, 1.0), lsig_lo)
-            xs_new = design(np.exp(th_new[:n_m]), np.exp(th_new[n_m:])) / scale
-            f_new = total(xs_new, beta_new, lsig_new)
-            if f_new < f_now:
-                improved = True
-                break
-            lam *= 10
-        if not improved:
-            converged = True
-            break
-        gain = f_now - f_new
-        th, beta, xs, lsig, f_now = th_new, beta_new, xs_new, lsig_new, f_new
-        lam = max(lam / 10, 1e-9)
-        logger.debug("free-residue ML %d: -logL %.3f (gain %.3g) fn %s zeta %s", it, f_now, gain,
-                     np.exp(th[:n_m]), np.exp(th[n_m:]))
-        if gain < 0.02:  # log-likelihood units: a parameter change well below its standard error
-            converged = True
-            break
+            _add_output_terms(hess, grad, jac[k], xs_, slice(n_th + k * k_lin, n_th + (k + 1) * k_lin),
+                              n_th + n_out * k_lin + k, y[k], pred[k], q, lsig_[k])
+        return grad, hess
+
+    def move(st, delta):
+        th_, beta_, _, lsig_ = st
+        th_new = np.clip(th_ + delta[:n_th], lo, hi)
+        beta_new = beta_ + delta[n_th : n_th + n_out * k_lin].reshape(n_out, k_lin)
+        lsig_new = np.maximum(lsig_ + np.clip(delta[n_th + n_out * k_lin :], -1.0, 1.0), lsig_lo)
+        xs_new = design(th_new) / scale
+        return (th_new, beta_new, xs_new, lsig_new), total(xs_new, beta_new, lsig_new)
+
+    state = (th, beta, xs, lsig)
+    (th, beta, _, lsig), f_now, converged = _marquardt(state, total(xs, beta, lsig), curvature, move,
+                                                       max_iter=max_iter, what="free-residue ML")
     return np.exp(th[:n_m]), np.exp(th[n_m:]), beta / scale, np.exp(lsig), converged, f_now
 
 
@@ -208,7 +268,7 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
 
     Returns
     -------
-    dict with ``fn, zeta, phi, beta_own, sigma, nll, converged``.
+    dict with ``fn, zeta, phi, sigma, nll, converged, pred, nuis_part, n_par``.
     """
     recs = prob.records
     q = np.concatenate([np.full(r["y"].shape[1], r["step"]) for r in recs])
@@ -217,10 +277,10 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
     n_m = fn.size
     n_in = prob.n_in
 
-    def columns(fn_, z_):
+    def columns(th_):
         """Forced responses (n_m, N, n_in) and own columns (N, K_own) of all records."""
+        fn_, z_ = np.exp(th_[:n_m]), np.exp(th_[n_m:])
         forced = np.zeros((n_m, n_tot, n_in))
-        own_list = []
         k_own = sum(2 * n_m + rec["nuis"].shape[1] for rec in recs)
         own = np.zeros((n_tot, k_own))
         row, col = 0, 0
@@ -236,40 +296,44 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
             col += 2 * n_m + k_n
         return forced, own
 
-    def predict(forced, own, phi_, beta_):
+    def predict(forced, own_s_, phi_, beta_):
         z = np.einsum("mni,mi->mn", forced, phi_)  # (n_m, N)
-        return phi_.T @ z + beta_ @ own.T, z
+        return phi_.T @ z + beta_ @ own_s_.T, z
 
     th = np.concatenate([np.log(fn), np.log(np.clip(zeta, MIN_DAMPING * 1.01, max_damping * 0.99))])
     lo = np.concatenate([np.log(fn) - 0.2, np.full(n_m, np.log(MIN_DAMPING))])
     hi = np.concatenate([np.log(fn) + 0.2, np.full(n_m, np.log(max_damping))])
     phi = np.array(phi, dtype=float).reshape(n_m, n_in)
-    forced, own = columns(np.exp(th[:n_m]), np.exp(th[n_m:]))
+    forced, own = columns(th)
     own_scale = np.linalg.norm(own, axis=0)
     own_scale[own_scale == 0] = 1.0
     own_s = own / own_scale
-    x_modal, _ = predict(forced, np.zeros_like(own_s), phi, np.zeros((n_out, own_s.shape[1])))
+    x_modal = predict(forced, np.zeros_like(own_s), phi, np.zeros((n_out, own_s.shape[1])))[0]
     beta = lstsq_normal(own_s, (y - x_modal).T).T
-    res = y - predict(forced, own_s, phi, beta)[0]
-    lsig = np.log(np.maximum(np.sqrt(np.mean(res**2, axis=1)), 0.01 * q.min()))
-    lsig_lo = np.log(0.01 * q.min())
+    grid_floor = np.log(0.01 * q.min())
 
-    def total(forced_, phi_, beta_, lsig_):
-        pred = predict(forced_, own_s_cur[0], phi_, beta_)[0]
+    def scale_floor(th_, phi_):
+        """Log error-scale floor per output at these parameters (see :func:`_error_scale`)."""
+        s_in = input_noise_scale(prob, np.exp(th_[:n_m]), np.exp(th_[n_m:]), phi_)
+        return grid_floor if s_in is None else np.maximum(grid_floor, np.log(np.maximum(s_in, 1e-300)))
+
+    lsig, _ = _error_scale(y - predict(forced, own_s, phi, beta)[0], q)
+    lsig = np.maximum(lsig, scale_floor(th, phi))
+
+    def total(forced_, own_s_, phi_, beta_, lsig_):
+        pred = predict(forced_, own_s_, phi_, beta_)[0]
         return sum(float(np.sum(interval_terms(y[k], pred[k], q, np.exp(lsig_[k]))[0])) for k in range(n_out))
 
-    own_s_cur = [own_s]
-    f_now = total(forced, phi, beta, lsig)
     n_th, n_phi, k_own = 2 * n_m, n_m * n_in, own_s.shape[1]
     n_shared = n_th + n_phi
     n_par = n_shared + n_out * (k_own + 1)
-    lam = 1e-3
-    converged = False
     step = 1e-6
-    for it in range(max_iter):
-        fn_c, z_c = np.exp(th[:n_m]), np.exp(th[n_m:])
-        pred, zmod = predict(forced, own_s, phi, beta)
-        beta_raw = beta / own_scale
+
+    def curvature(st):
+        th_, phi_, beta_, lsig_, forced_, own_s_ = st
+        fn_c, z_c = np.exp(th_[:n_m]), np.exp(th_[n_m:])
+        pred, zmod = predict(forced_, own_s_, phi_, beta_)
+        beta_raw = beta_ / own_scale
         # d x_o / d theta: finite differences of the mode's forced and free-response columns
         d_th = np.zeros((n_out, n_tot, n_th))
         for m in range(n_m):
@@ -281,66 +345,43 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
                     n = rec["y"].shape[1]
                     f0_, i0_ = prob.mode_columns(rec, fn_c[m], z_c[m])
                     f1_, i1_ = prob.mode_columns(rec, f1, z1)
-                    dz = (f1_ - f0_) @ phi[m] / step  # (n,)
+                    dz = (f1_ - f0_) @ phi_[m] / step  # (n,)
                     di = (i1_ - i0_) / step  # (n, 2)
                     ic = slice(col + 2 * m, col + 2 * m + 2)
-                    d_th[:, row : row + n, m + which * n_m] = np.outer(phi[m], dz) + beta_raw[:, ic] @ di.T
+                    d_th[:, row : row + n, m + which * n_m] = np.outer(phi_[m], dz) + beta_raw[:, ic] @ di.T
                     row += n
                     col += 2 * n_m + rec["nuis"].shape[1]
         hess = np.zeros((n_par, n_par))
         grad = np.zeros(n_par)
         for k in range(n_out):
-            _, g, h, gs = interval_terms(y[k], pred[k], q, np.exp(lsig[k]))
             # d x_k / d phi_rj = delta_kj z_r + phi_rk Y_r[:, j]
             d_phi = np.zeros((n_tot, n_phi))
             for m in range(n_m):
-                d_phi[:, m * n_in : (m + 1) * n_in] = phi[m, k] * forced[m]
+                d_phi[:, m * n_in : (m + 1) * n_in] = phi_[m, k] * forced_[m]
                 d_phi[:, m * n_in + k] += zmod[m]
-            js = np.hstack([d_th[k], d_phi])  # (N, n_shared)
-            sl = slice(n_shared + k * k_own, n_shared + (k + 1) * k_own)
-            hess[:n_shared, :n_shared] += js.T @ (h[:, None] * js)
-            hb = own_s.T @ (h[:, None] * js)
-            hess[sl, :n_shared] = hb
-            hess[:n_shared, sl] = hb.T
-            hess[sl, sl] = _weighted_gram(own_s, h)
-            grad[:n_shared] += js.T @ g
-            grad[sl] = own_s.T @ g
-            jsig = n_shared + n_out * k_own + k
-            grad[jsig] = np.sum(gs)
-            hess[jsig, jsig] = np.sum(gs * gs) + 1e-9
-        improved = False
-        for _ in range(12):
-            a = hess + lam * np.diag(np.diag(hess) + 1e-12)
-            try:
-                delta = -np.linalg.solve(a, grad)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            th_new = np.clip(th + delta[:n_th], lo, hi)
-            phi_new = phi + delta[n_th:n_shared].reshape(n_m, n_in)
-            beta_new = beta + delta[n_shared : n_shared + n_out * k_own].reshape(n_out, k_own)
-            lsig_new = np.maximum(lsig + np.clip(delta[n_shared + n_out * k_own :], -1.0, 1.0), lsig_lo)
-            forced_new, own_new = columns(np.exp(th_new[:n_m]), np.exp(th_new[n_m:]))
-            own_s_cur[0] = own_new / own_scale
-            f_new = total(forced_new, phi_new, beta_new, lsig_new)
-            if f_new < f_now:
-                improved = True
-                break
-            own_s_cur[0] = own_s
-            lam *= 10
-        if not improved:
-            converged = True
-            break
-        gain = f_now - f_new
-        th, phi, beta, lsig, f_now = th_new, phi_new, beta_new, lsig_new, f_new
-        forced, own_s = forced_new, own_s_cur[0]
-        lam = max(lam / 10, 1e-9)
-        logger.debug("modal-form ML %d: -logL %.3f (gain %.3g) fn %s zeta %s", it, f_now, gain,
-                     np.exp(th[:n_m]), np.exp(th[n_m:]))
-        if gain < 0.02:
-            converged = True
-            break
+            _add_output_terms(hess, grad, np.hstack([d_th[k], d_phi]), own_s_,
+                              slice(n_shared + k * k_own, n_shared + (k + 1) * k_own),
+                              n_shared + n_out * k_own + k, y[k], pred[k], q, lsig_[k])
+        return grad, hess
+
+    def move(st, delta):
+        th_, phi_, beta_, lsig_, _, _ = st
+        th_new = np.clip(th_ + delta[:n_th], lo, hi)
+        phi_new = phi_ + delta[n_th:n_shared].reshape(n_m, n_in)
+        beta_new = beta_ + delta[n_shared : n_shared + n_out * k_own].reshape(n_out, k_own)
+        # the error scale follows the floor the model sets (the response to the force's noise)
+        lsig_new = np.maximum(lsig_ + np.clip(delta[n_shared + n_out * k_own :], -1.0, 1.0), scale_floor(th_new, phi_new))
+        forced_new, own_new = columns(th_new)
+        own_s_new = own_new / own_scale
+        return ((th_new, phi_new, beta_new, lsig_new, forced_new, own_s_new),
+                total(forced_new, own_s_new, phi_new, beta_new, lsig_new))
+
+    state = (th, phi, beta, lsig, forced, own_s)
+    state, f_now, converged = _marquardt(state, total(forced, own_s, phi, beta, lsig), curvature, move,
+                                         max_iter=max_iter, what="modal-form ML")
+    th, phi, beta, lsig, forced, own_s = state
     pred, _ = predict(forced, own_s, phi, beta)
+    own = own_s * own_scale
     return {"fn": np.exp(th[:n_m]), "zeta": np.exp(th[n_m:]), "phi": phi, "sigma": np.exp(lsig), "nll": f_now,
             "converged": converged, "pred": pred, "nuis_part": (beta / own_scale) @ (own * _nuis_mask(recs, n_m)).T,
             "n_par": n_par}

@@ -51,7 +51,8 @@ from ._arrays import readonly as _ro
 from scipy import optimize
 from scipy import signal as sps
 
-from .fit import _residue_modes, blas_single_threaded, lstsq_normal
+from ._linalg import blas_single_threaded, lstsq_normal
+from .fit import _residue_modes
 from .harmonics import Harmonics, fit_harmonic_signal, harmonic_basis
 from .modal import ModalModel
 from .quantised import MIN_DAMPING, free_residue_ml, modal_form_ml
@@ -307,6 +308,51 @@ def _rank_one_start(prob, fn, zeta):
     return np.array(out_f), np.array(out_z), np.array(out_phi).reshape(len(out_f), len(ins))
 
 
+def _directional_proposals(prob, pred, grid, zeta0):
+    """Per output axis, the best new mode along that axis alone, on top of a modal-form fit.
+
+    A mode with participation ``phi e_o`` adds ``phi^2 (g * p_o)`` and a free response to output
+    ``o`` only. For each output the residual of the current fit (``pred``, all records stacked) is
+    regressed on those columns for every frequency of ``grid`` (damping ``zeta0``); the frequency
+    that explains most of it, with its participation from the fitted gain, is proposed. Outputs
+    whose best gain is not positive (no physical mode) propose nothing.
+
+    Returns
+    -------
+    list of (frequency_hz, phi) with ``phi`` shaped ``(1, n_in)``.
+    """
+    recs = prob.records
+    y = np.concatenate([r["y_raw"] for r in recs], axis=1)
+    res = y - pred
+    ins = list(recs[0]["inputs"])
+    n_tot = y.shape[1]
+    out = []
+    for k, o in enumerate(prob.outputs):
+        j = ins.index(o)
+        best, best_f, best_gain = 0.0, None, 0.0
+        for f0 in grid:
+            c = np.zeros((n_tot, 1 + 2 * len(recs)))
+            row = 0
+            for i_rec, rec in enumerate(recs):
+                forced, free = prob.mode_columns(rec, f0, zeta0)
+                n = forced.shape[0]
+                c[row : row + n, 0] = forced[:, j]
+                c[row : row + n, 1 + 2 * i_rec : 3 + 2 * i_rec] = free
+                row += n
+            gram = c.T @ c
+            gram[np.diag_indices_from(gram)] += 1e-12 * np.trace(gram) + 1e-300
+            rhs = c.T @ res[k]
+            coef = np.linalg.solve(gram, rhs)
+            gain = float(rhs @ coef)
+            if gain > best and coef[0] > 0:
+                best, best_f, best_gain = gain, f0, float(coef[0])
+        if best_f is not None:
+            phi = np.zeros((1, len(ins)))
+            phi[0, j] = np.sqrt(best_gain)
+            out.append((float(best_f), phi))
+    return out
+
+
 def _prepare(signals, harmonics, inputs, outputs):
     recs = []
     for s, h in zip(signals, harmonics):
@@ -355,6 +401,7 @@ def fit_time_domain(
     scan_damping: float = 0.05,
     scan_spacing: float = 0.04,
     max_damping: float = 0.3,
+    force_noise_variance_N2=None,
     source: dict | None = None,
 ) -> TimeFit:
     """Fit a modal model to force and displacement records in the time domain.
@@ -395,6 +442,10 @@ def fit_time_domain(
     max_modes, scan_damping, scan_spacing :
         Of the greedy search.
     max_damping : float
+    force_noise_variance_N2 : float or sequence of float, optional
+        Variance of the measured force's own error per sample (sensor noise and rounding), N^2,
+        one value or one per record. The model's response to it is the smallest error scale the
+        quantised-output likelihood may use (:func:`oma.quantised.input_noise_scale`).
     source : dict, optional
         Provenance for the model.
 
@@ -417,6 +468,10 @@ def fit_time_domain(
     if inputs.size == 0 or outputs.size == 0:
         raise ValueError("the records share no recorded force axis or no recorded displacement axis")
     recs = _prepare(sigs, harm, inputs, outputs)
+    noise = np.broadcast_to(np.asarray(force_noise_variance_N2 if force_noise_variance_N2 is not None else 0.0,
+                                       dtype=float), (len(recs),))
+    for rec, v in zip(recs, noise):
+        rec["force_noise"] = float(v)
     prob = _Problem(recs, residual=residual)
     n_total = sum(r["y"].shape[1] for r in recs) * outputs.size
 
@@ -454,12 +509,7 @@ def fit_time_domain(
         if quantised and rank_one and fn_.size:
             f1, z1, p1 = _rank_one_start(prob, fn_, z_)
             if f1.size:
-                r1 = modal_form_ml(prob, f1, z1, p1, max_damping)
-                out.update(fn=r1["fn"], zeta=r1["zeta"], sigma=r1["sigma"], ok=r1["converged"], r1=r1,
-                           message="quantised-output maximum likelihood (modal form) "
-                           + ("converged" if r1["converged"] else "stopped at its iteration limit"),
-                           bic=2.0 * r1["nll"] + r1["n_par"] * np.log(n_total))
-                return out
+                return evaluate_modal_form(f1, z1, p1)
         if quantised:
             fm, zm, beta, sig, conv, nll = free_residue_ml(prob, fn_, z_, max_damping)
             n_par = (n_lin(fm.size) + 1) * outputs.size + 2 * fm.size
@@ -470,6 +520,14 @@ def fit_time_domain(
             rr = prob.solve(fn_, z_)
             out["bic"] = _bic(float(rr @ rr), n_total, n_lin(fn_.size) * outputs.size + 2 * fn_.size)
         return out
+
+    def evaluate_modal_form(fn_, z_, phi_):
+        """The modal-form likelihood fit started from ``(fn_, z_, phi_)``, scored by its BIC."""
+        r1 = modal_form_ml(prob, fn_, z_, phi_, max_damping)
+        return {"fn": r1["fn"], "zeta": r1["zeta"], "sigma": r1["sigma"], "ok": r1["converged"], "r1": r1,
+                "beta": None, "bic": 2.0 * r1["nll"] + r1["n_par"] * np.log(n_total),
+                "message": "quantised-output maximum likelihood (modal form) "
+                + ("converged" if r1["converged"] else "stopped at its iteration limit")}
 
     def ls_rss(fn_, z_):
         rr = prob.solve(fn_, z_)
@@ -491,9 +549,18 @@ def fit_time_domain(
                 near = np.min(np.abs(np.log(grid[:, None] / cur["fn"][None, :])), axis=1) < 2 * scan_spacing
                 rss[near] = np.inf
             f_new = grid[int(np.argmin(rss))]
-            cand = evaluate(np.append(cur["fn"], f_new), np.append(cur["zeta"], scan_damping))
-            logger.debug("greedy: candidate %.3f Hz -> modes %s, BIC %.1f (was %.1f)", f_new, cand["fn"],
-                         cand["bic"], cur["bic"])
+            cands = [evaluate(np.append(cur["fn"], f_new), np.append(cur["zeta"], scan_damping))]
+            if cur["r1"] is not None:
+                # in the modal form a mode along one axis is not explained by a close mode along
+                # another (a robot's X and Z modes 5 % apart), which the free-residue sweep above
+                # cannot see: propose, per output, the best mode along that axis alone
+                r1 = cur["r1"]
+                for f_ax, phi_ax in _directional_proposals(prob, r1["pred"], grid, scan_damping):
+                    cands.append(evaluate_modal_form(np.append(r1["fn"], f_ax), np.append(r1["zeta"], scan_damping),
+                                                     np.vstack([r1["phi"], phi_ax])))
+            cand = min(cands, key=lambda c: c["bic"])
+            logger.debug("greedy: candidates %s -> modes %s, BIC %.1f (was %.1f)",
+                         [np.round(c["fn"], 2) for c in cands], cand["fn"], cand["bic"], cur["bic"])
             if cand["bic"] > cur["bic"] - evidence or cand["fn"].size <= cur["fn"].size:
                 break
             cur = cand
@@ -533,13 +600,19 @@ def fit_time_domain(
                 # a mode whose removal raises the residual by more than 10 % is plainly needed
                 if ls_rss(fn[keep], zeta[keep]) > 1.1 * base_rss:
                     continue
-                cand = evaluate(fn[keep], zeta[keep])
-                # removing one of two close poles leaves their directions to a rank-two residue:
-                # in the modal model that saves only the pole and one initial state (see split)
-                close = np.min(np.abs(np.log(fn[keep] / fn[m]))) < 0.1 if keep.any() else False
-                saved = 4 if close else (inputs.size + 2) * outputs.size + 2
-                full = (inputs.size + 2) * outputs.size + 2
-                adj = cand["bic"] + (full - saved) * np.log(n_total)
+                if cur["r1"] is not None:
+                    # the modal form's BIC counts every parameter of the mode: no adjustment
+                    r1 = cur["r1"]
+                    cand = evaluate_modal_form(r1["fn"][keep], r1["zeta"][keep], r1["phi"][keep])
+                    adj = cand["bic"]
+                else:
+                    cand = evaluate(fn[keep], zeta[keep])
+                    # removing one of two close poles leaves their directions to a rank-two
+                    # residue: in the modal model that saves only the pole and one initial state
+                    close = np.min(np.abs(np.log(fn[keep] / fn[m]))) < 0.1 if keep.any() else False
+                    saved = 4 if close else (inputs.size + 2) * outputs.size + 2
+                    full = (inputs.size + 2) * outputs.size + 2
+                    adj = cand["bic"] + (full - saved) * np.log(n_total)
                 if (adj < cur["bic"] + evidence and cand["fn"].size < fn.size
                         and (best is None or adj < best[2])):
                     best = (cand, fn[m], adj)
@@ -656,3 +729,4 @@ def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source
     return TimeFit(model=model, residues=residues, residual_rms_m=rms, fit_error=ferr, noise_scale_m=sigma,
                    quantised=True, dropped_modes_hz=tuple(dropped), split_modes_hz=tuple(split_hz),
                    success=bool(r1["converged"]), message=message)
+

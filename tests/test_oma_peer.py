@@ -1,11 +1,14 @@
 """Peer comparison with sdypy-EMA (LSCF/LSFD) on the same synthetic FRFs (test-only dependency)."""
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.signal import find_peaks
 
-from oma.fit import fit_poles_residues, stabilisation_diagram
+from oma.fit import fit_poles_residues, modal_phase_collinearity, prune_modes
+from oma.lscf import stabilisation_diagram
 from oma.modal import ModalModel
 
 EMA = pytest.importorskip("sdypy.EMA")
@@ -45,3 +48,40 @@ def test_robomill_within_1pc_frequency_and_10pc_damping_like_sdypy(seed):
         assert f_r == pytest.approx(fn, rel=0.01)  # issue 3: within 1 % in frequency
         assert z_r == pytest.approx(zeta, rel=0.10)  # and 10 % in damping
         assert f_r == pytest.approx(f_s, rel=0.01)  # and the peer agrees on the frequencies
+
+
+#: The real impact-test file, kept outside the repository in ../shared/data (data/README.md).
+REAL_UFF = Path(__file__).resolve().parents[2] / "shared" / "data" / "frf-uff58" / "measurement.uff"
+#: Peaks the data README lists, Hz; the file has one more resonance, near 51.5 Hz (see below).
+README_PEAKS_HZ = (142.0, 279.0, 460.0, 687.0, 959.0)
+
+
+@pytest.mark.skipif(not REAL_UFF.exists(), reason="../shared/data/frf-uff58/measurement.uff not present")
+def test_real_accelerance_one_mode_per_resonance_peak_of_the_data():
+    from oma.frf_io import read_uff58_functions
+
+    funcs = read_uff58_functions(REAL_UFF)
+    f = funcs[0].freq_hz
+    band = (f >= 50.0) & (f <= 1000.0)
+    f = f[band]
+    acc = np.array([fn.measured for fn in funcs])[:, band]
+    rec = np.array([fn.receptance_m_N for fn in funcs])[:, band]
+    # resonance peaks of the data: local maxima of the summed magnitude whose prominence exceeds
+    # the median magnitude; the file's six stand 15 to 300 times above it, the next 0.1 times
+    level = np.sum(np.abs(acc), axis=0)
+    peaks = f[find_peaks(level, prominence=np.median(level))[0]]
+    assert all(np.min(np.abs(peaks - p)) <= 1.0 for p in README_PEAKS_HZ)  # 1 Hz lines
+    # robomill, told nothing about the peaks: uniform weights on the measured accelerance
+    w2 = (2 * np.pi * f) ** 2
+    opts = dict(weights=np.broadcast_to(w2, rec.shape), upper_residual=True, lower_residual=True,
+                complex_modes=True)
+    diag = stabilisation_diagram(f, acc, max_order=60)
+    fit = prune_modes(f, rec, fit_poles_residues(f, rec, diag.natural_frequency_hz, diag.damping_ratio, **opts),
+                      **opts)
+    # exactly one mode per peak, within 2 % (the peak lines are 1 Hz apart; damping ~3e-4 puts
+    # each resonance within half a line of its highest line)
+    assert fit.n_modes == peaks.size
+    np.testing.assert_allclose(np.sort(fit.natural_frequency_hz), np.sort(peaks), rtol=0.02)
+    # and each has a real mode shape across the three excitation points
+    res = fit.residues + 1j * (2 * np.pi * fit.natural_frequency_hz)[:, None] * fit.residues_imag
+    assert np.all(modal_phase_collinearity(res) > 0.9)

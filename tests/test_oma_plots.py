@@ -55,3 +55,51 @@ def test_importing_oma_does_not_import_matplotlib():
             "print('matplotlib' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _lines(ax, label):
+    return [line for line in ax.get_lines() if line.get_label() == label]
+
+
+def test_reference_table_is_drawn_only_on_its_own_lines(result):
+    import matplotlib.pyplot as plt
+
+    # a hammer-like reference measured on 5-60 Hz only, plotted over 1-100 Hz
+    ref_f = np.linspace(5.0, 60.0, 221)
+    ref = FRFTable.from_model(paper_like_model(), ref_f)
+    fig, axes = result.plot_frf(ref, freq_range_hz=(1.0, 100.0))
+    for row in (0, 1):  # magnitude and phase
+        for ax in axes[row]:
+            (line,) = _lines(ax, "reference")
+            x = np.asarray(line.get_xdata())
+            # no extrapolation (the table's end values held) and no interpolation: its own lines
+            assert x.min() >= ref_f[0] and x.max() <= ref_f[-1]
+            np.testing.assert_array_equal(x, ref_f)
+    plt.close(fig)
+
+
+def test_phases_are_unwrapped_not_cut_at_180_degrees(result):
+    import matplotlib.pyplot as plt
+
+    # a reference with a pure delay of 15 ms: its phase falls steadily to about -540 degrees at
+    # 100 Hz; a wrapped drawing jumps by 360 degrees three times
+    f = np.linspace(1.0, 100.0, 991)
+    delay_s = 0.015
+    g = paper_like_model().receptance(f) * np.exp(-2j * np.pi * f * delay_s)
+    ref = FRFTable.from_entries(f, {"XX": g[0, 0], "YY": g[1, 1], "ZZ": g[2, 2]})
+    fig, axes = result.plot_frf(ref, freq_range_hz=(1.0, 100.0))
+    for ax in axes[1]:
+        (ref_line,) = _lines(ax, "reference")
+        (model_line,) = _lines(ax, "identified model")
+        (h1_points,) = _lines(ax, "H1 estimate")
+        x, y = (np.asarray(v) for v in ref_line.get_data())
+        # consecutive lines 0.1 Hz apart: the delay turns the phase by 0.54 degrees, a mode by a
+        # few degrees; a +-360 degree cut would show as a jump of more than 180 degrees
+        assert np.max(np.abs(np.diff(y))) < 90.0
+        assert y[-1] - y[0] < -360.0  # the delay's full phase lag is drawn, not folded
+        xm, ym = (np.asarray(v) for v in model_line.get_data())
+        assert np.max(np.abs(np.diff(ym))) < 90.0
+        # each H1 point lies on the branch of the model (within 180 degrees of it)
+        xp, yp = (np.asarray(v) for v in h1_points.get_data())
+        assert np.all(np.abs(yp - np.interp(xp, xm, ym)) <= 180.0 + 1e-9)
+    plt.close(fig)

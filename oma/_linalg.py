@@ -1,0 +1,105 @@
+"""Small linear-algebra helpers of the estimators: BLAS thread control, normal-equation least squares.
+
+The estimators solve many small problems; multi-threaded BLAS on them only adds overhead and, on a
+shared machine, contention (measured: a stabilisation diagram 10 s with competing OpenBLAS threads,
+0.5 s on one). :func:`single_threaded_blas` pins the OpenBLAS builds bundled with NumPy and SciPy
+to one thread for the duration of a call.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+
+import numpy as np
+
+__all__ = ["single_threaded_blas", "blas_single_threaded", "lstsq_normal"]
+
+
+def _openblas_thread_controls():
+    """(get, set) thread-count functions of the OpenBLAS builds bundled in NumPy and SciPy wheels."""
+    import ctypes
+    import glob
+    import os
+
+    import scipy
+
+    out = []
+    for package, pattern, suffix in ((np, "numpy.libs", "64_"), (scipy, "scipy.libs", "")):
+        root = os.path.join(os.path.dirname(os.path.dirname(package.__file__)), pattern)
+        for path in glob.glob(os.path.join(root, "libscipy_openblas*")):
+            try:
+                lib = ctypes.CDLL(path)  # the already-loaded library: same handle
+                get = getattr(lib, f"scipy_openblas_get_num_threads{suffix}")
+                set_ = getattr(lib, f"scipy_openblas_set_num_threads{suffix}")
+            except (OSError, AttributeError):
+                continue
+            get.restype = ctypes.c_int
+            set_.argtypes = [ctypes.c_int]
+            out.append((get, set_))
+    return out
+
+
+@contextlib.contextmanager
+def single_threaded_blas():
+    """Run the enclosed code with the bundled OpenBLAS limited to one thread, then restore it.
+
+    The identification solves thousands of small least-squares problems (tens of columns). On a
+    loaded machine OpenBLAS's worker threads spin-wait for cores and slow such products down by
+    one to two orders of magnitude (measured here: a 1800 x 36 normal-equation product takes
+    70 ms threaded, 0.14 ms single-threaded). Nothing happens where the controls are not found
+    (other BLAS builds). Process-wide while it lasts: other threads' BLAS calls run single-threaded too.
+    """
+    controls = []
+    for get, set_ in _openblas_thread_controls():
+        try:
+            controls.append((set_, int(get())))
+            set_(1)
+        except Exception:  # noqa: BLE001 - a foreign library's call: never let it break the fit
+            continue
+    try:
+        yield
+    finally:
+        for set_, old in controls:
+            set_(old)
+
+def blas_single_threaded(func):
+    """Decorator: run ``func`` inside :func:`single_threaded_blas`."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        with single_threaded_blas():
+            return func(*args, **kwargs)
+
+    return wrapper
+
+
+def lstsq_normal(a, y, *, ridge: float = 1e-12):
+    """Least-squares solution of ``a c = y`` through the column-scaled normal equations.
+
+    For the small, well-scaled designs of this package (tens of columns) this is as accurate as
+    an SVD solve and, unlike LAPACK's threaded ``gelsd``, does not slow down by two orders of
+    magnitude on a loaded multi-core machine. A relative ``ridge`` guards rank-deficient designs.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n, p)
+    y : ndarray, shape (n,) or (n, k)
+
+    Returns
+    -------
+    ndarray, shape (p,) or (p, k)
+    """
+    from scipy.linalg import cho_factor, cho_solve
+
+    scale = np.sqrt(np.sum(a * a, axis=0))
+    scale[scale == 0] = 1.0
+    a_s = a / scale
+    g = a_s.T @ a_s
+    g[np.diag_indices_from(g)] += ridge * max(float(np.trace(g)) / max(g.shape[0], 1), 1e-300)
+    rhs = a_s.T @ y
+    try:
+        c = cho_solve(cho_factor(g, check_finite=False), rhs, check_finite=False)
+    except np.linalg.LinAlgError:
+        c = np.linalg.pinv(g) @ rhs
+    return c / (scale if c.ndim == 1 else scale[:, None])
