@@ -324,6 +324,14 @@ class _PoleResidueProblem:
         return self.n_slots * (n_modes * self.per_mode + self._fixed.shape[1]) + 2 * n_modes
 
 
+def _fit_inputs(freq_hz, frf, weights, slots):
+    """Lines, FRFs (n_entries, n_freq), finite non-negative weights and slot indices as arrays."""
+    h = np.array(frf, dtype=complex, ndmin=2)
+    wt = np.ones(h.shape) if weights is None else np.array(np.broadcast_to(weights, h.shape), dtype=float)
+    slots = np.arange(h.shape[0]) if slots is None else np.asarray(slots, dtype=int)
+    return np.asarray(freq_hz, dtype=float), h, np.where(np.isfinite(wt), wt, 0.0), slots
+
+
 def _theta(fn, zeta):
     return np.concatenate([np.log(fn), np.log(zeta)])
 
@@ -374,11 +382,7 @@ def fit_poles_residues(
     -------
     PoleResidueFit
     """
-    f = np.asarray(freq_hz, dtype=float)
-    h = np.array(frf, dtype=complex, ndmin=2)
-    wt = np.ones(h.shape) if weights is None else np.array(np.broadcast_to(weights, h.shape), dtype=float)
-    wt = np.where(np.isfinite(wt), wt, 0.0)
-    slots = np.arange(h.shape[0]) if slots is None else np.asarray(slots, dtype=int)
+    f, h, wt, slots = _fit_inputs(freq_hz, frf, weights, slots)
     prob = _PoleResidueProblem(f, h, wt, slots, upper=upper_residual, lower=lower_residual,
                                complex_modes=complex_modes)
     fn0 = np.atleast_1d(np.asarray(natural_frequency_hz, dtype=float))
@@ -580,11 +584,7 @@ def prune_modes(freq_hz, frf, fit: PoleResidueFit, *, weights=None, slots=None, 
     -------
     PoleResidueFit
     """
-    f = np.asarray(freq_hz, dtype=float)
-    h = np.array(frf, dtype=complex, ndmin=2)
-    wt = np.ones(h.shape) if weights is None else np.array(np.broadcast_to(weights, h.shape), dtype=float)
-    wt = np.where(np.isfinite(wt), wt, 0.0)
-    slots = np.arange(h.shape[0]) if slots is None else np.asarray(slots, dtype=int)
+    f, h, wt, slots = _fit_inputs(freq_hz, frf, weights, slots)
     fit, _ = _select_modes(f, h, wt, slots, fit, upper_residual=upper_residual, lower_residual=lower_residual,
                            complex_modes=complex_modes, max_damping=max_damping, min_mpc=min_mpc)
     return fit

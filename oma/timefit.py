@@ -636,18 +636,7 @@ def fit_time_domain(
         beta = lstsq_normal(xd, y_all.T).T
     pred = beta @ xd.T
     nuis_part = beta[:, nuis_cols] @ xd[:, nuis_cols].T
-    rms = np.full(3, np.nan)
-    ferr = np.full(3, np.nan)
-    q_var = np.concatenate([np.full(rec["y"].shape[1], (rec["step"] or 0.0) ** 2 / 12.0) for rec in recs]) if quantised \
-        else np.zeros(y_all.shape[1])
-    for k, o in enumerate(outputs):
-        dyn_meas = y_all[k] - nuis_part[k]
-        num = float(np.sum((y_all[k] - pred[k]) ** 2))
-        den = float(np.sum((dyn_meas - dyn_meas.mean()) ** 2))
-        rms[o] = np.sqrt(num / y_all.shape[1])
-        # what the rounding alone explains (q^2/12 per sample) is not a misfit of the model
-        excess = max(num - float(np.sum(q_var)), 0.0)
-        ferr[o] = np.sqrt(excess / max(den - float(np.sum(q_var)), 1e-300)) if den > 0 else np.nan
+    rms, ferr = _misfit(y_all, pred, nuis_part, recs, outputs, quantised)
     a, res_c = prob.unpack_residues(list(beta), fn.size)
 
     freqs, zetas, ks, dirs, keep = [], [], [], [], []
@@ -690,11 +679,13 @@ def fit_time_domain(
     )
 
 
-def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source, message) -> TimeFit:
-    """The :class:`TimeFit` of a modal-form likelihood fit (:func:`oma.quantised.modal_form_ml`)."""
-    y_all = np.concatenate([rec["y_raw"] for rec in recs], axis=1)
-    pred, nuis_part = r1["pred"], r1["nuis_part"]
-    q_var = np.concatenate([np.full(rec["y"].shape[1], rec["step"] ** 2 / 12.0) for rec in recs])
+def _misfit(y_all, pred, nuis_part, recs, outputs, quantised):
+    """RMS residual and relative misfit of the dynamic response per output (see :class:`TimeFit`).
+
+    What the rounding alone explains (``q^2 / 12`` per sample of quantised displacement) is not a
+    misfit of the model and is taken out of both the residual and the dynamic response.
+    """
+    q_var = sum(rec["y"].shape[1] * (rec["step"] or 0.0) ** 2 / 12.0 for rec in recs) if quantised else 0.0
     rms = np.full(3, np.nan)
     ferr = np.full(3, np.nan)
     for k, o in enumerate(outputs):
@@ -702,8 +693,15 @@ def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source
         num = float(np.sum((y_all[k] - pred[k]) ** 2))
         den = float(np.sum((dyn_meas - dyn_meas.mean()) ** 2))
         rms[o] = np.sqrt(num / y_all.shape[1])
-        excess = max(num - float(np.sum(q_var)), 0.0)
-        ferr[o] = np.sqrt(excess / max(den - float(np.sum(q_var)), 1e-300)) if den > 0 else np.nan
+        excess = max(num - q_var, 0.0)
+        ferr[o] = np.sqrt(excess / max(den - q_var, 1e-300)) if den > 0 else np.nan
+    return rms, ferr
+
+
+def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source, message) -> TimeFit:
+    """The :class:`TimeFit` of a modal-form likelihood fit (:func:`oma.quantised.modal_form_ml`)."""
+    y_all = np.concatenate([rec["y_raw"] for rec in recs], axis=1)
+    rms, ferr = _misfit(y_all, r1["pred"], r1["nuis_part"], recs, outputs, True)
     fn, zeta = r1["fn"], r1["zeta"]
     phi = np.zeros((fn.size, 3))
     phi[:, inputs] = r1["phi"]
