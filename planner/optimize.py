@@ -17,8 +17,8 @@ How each function enters the NLP (smooth inside one pocket):
   from different modes: the chatter frequency jumps; bisected); in each pocket the limit is a
   Chebyshev series whose values are the exact envelope at Chebyshev-Lobatto nodes, the degree
   doubled (32 ... 128) until the series through half the nodes reproduces the other half to
-  ``cheb_rtol``. The envelope misses lobes across eigenvalue-order swaps (:class:`_SwapGuard`);
-  those lobe pieces are added. SDM: the local maxima of the sampled diagram, each refined by a
+  ``cheb_rtol`` (the envelope follows each eigenvalue continuously in frequency, so no lobe is
+  lost where their order swaps). SDM: the local maxima of the sampled diagram, each refined by a
   golden-section search, a PCHIP through the samples, and local refinement around the best
   pockets' answers. Pockets narrower than ``min_pocket_rel_width`` of their centre speed (hundreds
   of tiny lobes at low speed) are merged, and the merged region uses the lower convex hull of the
@@ -294,50 +294,6 @@ def _lower_hull(x, y):
 
 def _linear_pocket(x0, y0, x1, y1) -> _Pocket:
     return _Pocket(float(x0), float(x1), np.array([(y0 + y1) / 2.0, (y1 - y0) / 2.0]), "hull")
-
-
-class _SwapGuard:
-    """Lobe pieces across eigenvalue-order swaps, which :func:`stability.zoa.envelope` leaves out.
-
-    The envelope skips every chatter-frequency interval over which a branch's phase jumps by
-    ``pi / 2`` or more (an ordering swap of the two eigenvalues). Each eigenvalue's lobe goes on
-    across the swap on the *other* branch, so speeds reached only through such an interval lose
-    their lowest lobe there, and the envelope (and :func:`stability.lobes.predict_point`) report
-    a higher one: measured on a 720/735 Hz tool, three flutes, ae/D = 0.1, 49.9 mm instead of
-    6.0 mm over 9934-9941 rpm. This guard pairs branch ``b`` at ``f_j`` with branch ``1 - b`` at
-    ``f_j+1`` where their phases agree, and gives each such piece of every lobe the smaller of the
-    two end depths (conservative over one frequency step); the planner uses the smaller of the
-    envelope and the guard.
-    """
-
-    def __init__(self, curves, rpm_lo: float, rpm_hi: float):
-        f, d, ph, n_t = curves.freq_hz, curves.depth_m, curves.phase_rad, curves.teeth
-        lo, hi, depth, freq = [], [], [], []
-        for b in (0, 1):
-            j = np.flatnonzero(np.isfinite(d[b][:-1]) & np.isfinite(d[1 - b][1:])
-                               & (np.abs(np.diff(ph[b])) >= np.pi / 2))
-            j = j[np.abs(ph[1 - b][j + 1] - ph[b][j]) < np.pi / 2]
-            for jj in j:
-                k = np.arange(0, int(np.ceil(60.0 * f[jj + 1] / (n_t * rpm_lo))) + 1)
-                xa = 60.0 * f[jj] / (n_t * (ph[b][jj] / TWO_PI + k))
-                xb = 60.0 * f[jj + 1] / (n_t * (ph[1 - b][jj + 1] / TWO_PI + k))
-                keep = (np.maximum(xa, xb) >= rpm_lo) & (np.minimum(xa, xb) <= rpm_hi)
-                lo.append(np.minimum(xa, xb)[keep])
-                hi.append(np.maximum(xa, xb)[keep])
-                depth.append(np.full(keep.sum(), min(d[b][jj], d[1 - b][jj + 1])))
-                freq.append(np.full(keep.sum(), f[jj]))
-        cat = (lambda a: np.concatenate(a) if a else np.zeros(0))
-        self.lo, self.hi, self.depth, self.freq = cat(lo), cat(hi), cat(depth), cat(freq)
-
-    def __call__(self, rpm):
-        """Guard depth (inf where no piece covers the speed) and its chatter frequency."""
-        rpm = np.asarray(rpm, dtype=float)
-        if self.lo.size == 0:
-            return np.full(rpm.shape, np.inf), np.full(rpm.shape, np.nan)
-        cover = (rpm[..., None] >= self.lo) & (rpm[..., None] <= self.hi)
-        d = np.where(cover, self.depth, np.inf)
-        i = np.argmin(d, axis=-1)
-        return np.min(d, axis=-1), np.where(np.isfinite(np.min(d, axis=-1)), self.freq[i], np.nan)
 
 
 # A Chebyshev series of the SDM's PCHIP (only once differentiable at the samples) is accepted at
@@ -776,7 +732,6 @@ class _Problem:
         self.feed_nodes = (np.array([fz_lo]) if self.fixed_feed
                            else np.linspace(max(fz_lo - pad, 0.5 * fz_lo), fz_hi + pad, settings.force_feed_nodes))
         self._nlps: dict[int, _NLP] = {}
-        self.guard: _SwapGuard | None = None  # ZOA: lobes the envelope misses (see _SwapGuard)
         self.boundary: dict[str, tuple[np.ndarray, ca.Function | None]] = {}
         for name, which, limit in (("force", 0, self.b.force), ("torque", 1, self.b.torque)):
             if limit is None:
@@ -954,10 +909,7 @@ class _Problem:
     def ratios(self, point: OperatingPoint) -> dict[str, float]:
         """Value / limit of every process constraint at a predicted point (> 1: violated)."""
         b = self.b
-        limit = point.depth_limit_m
-        if self.guard is not None:
-            limit = min(limit, float(self.guard([point.spindle_rpm])[0][0]))
-        stab = point.axial_depth_m / (b.margin * limit)
+        stab = point.axial_depth_m / (b.margin * point.depth_limit_m)
         # unstable at a depth below the limit found (SDM: several crossings; ZOA: exactly at it)
         out = {"stability": stab if point.stable else max(stab, 1.0 + 10 * self.settings.recheck_rtol)}
         if b.sle is not None:
@@ -1025,19 +977,6 @@ def _refine_sdm(prob, pockets, results, samples, sdm_limit, setup, settings: Pla
                                  mrr_m3_s=_mrr(setup, x) if ok else np.nan, solver_status=status, feasible=ok)
 
 
-def _guarded(diagram: LobeDiagram, guard: _SwapGuard) -> LobeDiagram:
-    """The ZOA diagram with the lobe pieces of :class:`_SwapGuard` taken into account."""
-    g_depth, g_freq = guard(np.asarray(diagram.rpm))
-    low = g_depth < np.asarray(diagram.depth_limit_m)
-    if not low.any():
-        return diagram
-    log.warning("the ZOA envelope misses lobes across an eigenvalue swap at %d of %d speeds "
-                "(%.0f-%.0f rpm); the planner uses them", low.sum(), low.size,
-                diagram.rpm[low].min(), diagram.rpm[low].max())
-    return replace(diagram, depth_limit_m=_ro(np.where(low, g_depth, diagram.depth_limit_m)),
-                   chatter_frequency_hz=_ro(np.where(low, g_freq, diagram.chatter_frequency_hz)))
-
-
 def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | None = None) -> Plan:
     """Spindle speed, axial depth and feed per tooth with the largest removal rate.
 
@@ -1086,7 +1025,7 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
     if method == "auto":
         method = "sdm" if cut.radial_depth_m / tool.diameter_m < settings.sdm_below_immersion else "zoa"
     if method == "zoa":
-        diagram, pockets, prob.guard = _zoa_pockets(model, setup, b.rpm, settings)
+        diagram, pockets = _zoa_pockets(model, setup, b.rpm, settings)
     else:
         diagram, pockets, samples, sdm_limit = _sdm_pockets(model, setup, b.rpm, settings)
     log.info("%d pockets (%s)", len(pockets), method)
@@ -1121,10 +1060,6 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
         return Plan(False, status, msg, spindle_rpm=None, axial_depth_m=None, feed_per_tooth_m=None,
                     mrr_m3_s=None, active_constraints=(), infeasible_constraint=culprit, point=None, **common)
     x = results[best].solution
-    if prob.guard is not None:  # report the guarded limit where the envelope misses a lobe
-        g = float(prob.guard([x[0]])[0][0])
-        if g < point.depth_limit_m:
-            point = replace(point, depth_limit_m=g, stable=bool(point.axial_depth_m < g))
     active = _active(prob, point, x)
     msg = (f"{x[0]:.0f} rpm, depth {x[1] * 1e3:.3g} mm, feed {x[2] * 1e3:.3g} mm/tooth: "
            f"{_mrr(setup, x) * 1e6:.4g} cm^3/s; active: {', '.join(active) or 'none'}")
@@ -1137,26 +1072,21 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
 
 
 def _zoa_pockets(model, setup, rpm_range, settings: PlanSettings):
-    """ZOA: the diagram (lobe gaps filled by the guard), the pockets and the guard."""
+    """ZOA: the diagram and the pockets."""
     tool, cut, coef = setup.tool, setup.cut, setup.material.cutting_coefficients
     lo, hi = rpm_range
     curves = zoa.limit_curves(model, tool, cut, coef, zoa.default_chatter_frequencies(model, n_freq=settings.n_freq))
-    guard = _SwapGuard(curves, lo, hi)
-    diagram = _guarded(lobe_diagram(model, tool, cut, coef, rpm_range=rpm_range, n_rpm=settings.n_rpm_zoa,
-                                    n_freq=settings.n_freq), guard)
+    diagram = lobe_diagram(model, tool, cut, coef, rpm_range=rpm_range, n_rpm=settings.n_rpm_zoa, n_freq=settings.n_freq)
 
     def envelope(r):
-        """Depth limit and chatter frequency, the smaller of the envelope and the guard."""
+        """Depth limit and chatter frequency of the envelope at the speeds ``r`` (cusps excluded)."""
         u, inv = np.unique(np.asarray(r, dtype=float), return_inverse=True)
         env = zoa.envelope(model, tool, cut, coef, u, curves=curves)
         keep = ~np.asarray(env.is_intersection)
-        depth, freq = np.asarray(env.depth_limit_m)[keep][inv], np.asarray(env.chatter_frequency_hz)[keep][inv]
-        g_depth, g_freq = guard(r)
-        low = g_depth < depth
-        return np.where(low, g_depth, depth), np.where(low, g_freq, freq)
+        return np.asarray(env.depth_limit_m)[keep][inv], np.asarray(env.chatter_frequency_hz)[keep][inv]
 
     breaks = _pocket_breaks_zoa(diagram, lo, hi, lambda r: envelope(r)[1])
-    return diagram, _build_pockets(breaks, lambda r: envelope(r)[0], settings, sampled=False), guard
+    return diagram, _build_pockets(breaks, lambda r: envelope(r)[0], settings, sampled=False)
 
 
 def _sdm_pockets(model, setup, rpm_range, settings: PlanSettings):

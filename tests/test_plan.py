@@ -10,7 +10,7 @@ Ground truth:
 * every recommended point re-checked here with :func:`stability.lobes.predict_point`;
 * the planner's analytic surface-error, force, torque and power models against
   :func:`stability.lobes.predict_point` at seeded random points;
-* for the gap in the ZOA envelope the planner guards against, the SDM as an independent method.
+* across an eigenvalue-order swap of the ZOA, the SDM as an independent method.
 """
 
 from __future__ import annotations
@@ -263,7 +263,7 @@ def test_tiny_low_speed_lobes_merge_into_a_conservative_hull(example_setup, plan
     """150-900 rpm: over a hundred lobes narrower than 2 % of their speed are merged; the hull of
     their minima stays below the exact envelope (to the sampling of each lobe's minimum at 9
     speeds: measured 8e-7 above at most), and the wide pockets' series match it."""
-    diagram, pockets, _ = _zoa_pockets(planning_model, example_setup, (150.0, 900.0), PlanSettings(n_rpm_zoa=1000))
+    diagram, pockets = _zoa_pockets(planning_model, example_setup, (150.0, 900.0), PlanSettings(n_rpm_zoa=1000))
     assert np.count_nonzero(diagram.is_intersection) > 100
     assert any(p.kind == "hull" for p in pockets) and len(pockets) < 40
     env = zoa.envelope(planning_model, example_setup.tool, example_setup.cut,
@@ -277,17 +277,18 @@ def test_tiny_low_speed_lobes_merge_into_a_conservative_hull(example_setup, plan
             assert ratio.min() >= 1 - 1e-5  # PlanSettings.cheb_rtol, with margin
 
 
-# ----------------------------------------------------------------------- the envelope's lobe gap
-def test_plan_does_not_use_the_gap_in_the_zoa_envelope(tool_model):
-    """stability.zoa.envelope loses the lowest lobe across an eigenvalue-order swap (here 9934-9941
-    rpm: 49.9 mm instead of 6.0 mm). The SDM, an independent method, puts the limit at ~6 mm there;
-    the planner must not plan beyond the margin times the lobe it guards with."""
+# ------------------------------------------------------------- lobes across an eigenvalue swap
+def test_plan_keeps_the_lowest_lobe_across_an_eigenvalue_order_swap(tool_model):
+    """An envelope of sorted eigenvalues loses the lowest lobe across an order swap (here 9934-9941
+    rpm: 49.9 mm instead of 6.0 mm; stability.zoa now follows each eigenvalue continuously). The
+    SDM, an independent method, puts the limit at ~6 mm there; the planner must not plan beyond
+    the margin times that lobe."""
     setup = low_immersion_setup(spindle_rpm=(9934.0, 9941.0), axial_depth_m=(2e-4, 3e-2),
                                 surface_location_error_m=None, max_force_N=None, spindle_torque_N_m=None,
                                 spindle_power_W=None)
     coef = setup.material.cutting_coefficients
     sdm = predict_point(tool_model, setup.tool, setup.cut, coef, spindle_rpm=9937.5, axial_depth_m=1e-3, method="sdm")
-    assert sdm.depth_limit_m < 7e-3  # the SDM limit is near the guarded lobe, far below 49.9 mm
+    assert sdm.depth_limit_m < 7e-3  # the SDM limit is near the lowest lobe, far below 49.9 mm
     result = plan(setup, tool_model, method="zoa")
     assert result.success
     # the ZOA and the SDM differ by up to ~20 % on this tool (measured 2-3 % here)
