@@ -293,7 +293,7 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     fs = float(records[0].sample_rate_hz)
     for r in records[1:]:
         if abs(r.sample_rate_hz - fs) > 1e-9 * fs:
-            raise RecordError(None, "sample_rate_hz", f"{fs} Hz like the first record", f"{r.sample_rate_hz} Hz")
+            raise RecordError(r.path, "sample_rate_hz", f"{fs} Hz like the first record", f"{r.sample_rate_hz} Hz")
     warnings: list[str] = []
 
     signals: list[PreparedSignals] = [prepare_record(r) for r in records]

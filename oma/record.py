@@ -53,6 +53,9 @@ class Record:
         The file's time column, s, when it had one.
     signal_file : str
         File name of the signals (``signals.csv`` or ``signals.npz``), used when writing.
+    path : str, optional
+        Where the record was read from (set by :func:`oma.record_io.read_record`); named in the
+        messages of errors found later (a record too short to diagnose, say). Not compared.
     """
 
     sample_rate_hz: float
@@ -67,6 +70,7 @@ class Record:
     joints_deg: np.ndarray | None = None
     time_s: np.ndarray | None = None
     signal_file: str = "signals.csv"
+    path: str | None = field(default=None, compare=False)
 
     def __post_init__(self):
         data = np.array(self.data, dtype=float, ndmin=2)

@@ -137,7 +137,7 @@ def read_record(path) -> Record:
     return Record(
         sample_rate_hz=fs, channels=channels, data=data, tool=tool, cut=cut, material=material,
         sensors=sensors, name=name, robot_model=robot_model, joints_deg=joints, time_s=time_s,
-        signal_file=file_name,
+        signal_file=file_name, path=os.fspath(p),
     )
 
 

@@ -87,12 +87,12 @@ def window_slice(record: Record) -> slice:
     t0 = t[0]
     lo, hi = float(window[0]), float(window[1])
     if not (hi > lo):
-        raise RecordError(None, "cut.window_s", "an increasing pair [start, end]", f"{list(window)}")
+        raise RecordError(record.path, "cut.window_s", "an increasing pair [start, end]", f"{list(window)}")
     i0 = int(np.searchsorted(t - t0, lo - 1e-9, side="left"))
     i1 = int(np.searchsorted(t - t0, hi + 1e-9, side="right"))
     if i0 >= n or i1 - i0 < 16:
         raise RecordError(
-            None,
+            record.path,
             "cut.window_s",
             f"a span inside the record (0 .. {record.duration_s:.3f} s) of at least 16 samples",
             f"{list(window)}",
@@ -180,6 +180,11 @@ def _grid_step(x: np.ndarray, nominal: float | None) -> float | None:
     return None
 
 
+def _signals_field(record: Record) -> str:
+    """How an error names a record's signals: by field when its file is known, by its name otherwise."""
+    return "signals" if record.path is not None else f"record {record.name or ''}".strip() + " signals"
+
+
 def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSignals:
     """Force and displacement of a record inside its cut window, SI.
 
@@ -196,7 +201,7 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
     sl = window_slice(record)
     force = np.array(record.force[:, sl])
     if np.all(np.isnan(force)):
-        raise RecordError(None, f"record {record.name or ''}".strip() + " signals", "force channels", "none")
+        raise RecordError(record.path, _signals_field(record), "force channels", "none")
     fs = float(record.sample_rate_hz)
     step_hint = record.sensors.displacement_resolution_m if record.sensors is not None else None
     for quantity in ("displacement", "velocity", "acceleration"):
@@ -204,12 +209,7 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
             motion = np.array(record.vector(quantity)[:, sl])
             break
     else:
-        raise RecordError(
-            None,
-            f"record {record.name or ''}".strip() + " signals",
-            "displacement, velocity or acceleration channels",
-            "none",
-        )
+        raise RecordError(record.path, _signals_field(record), "displacement, velocity or acceleration channels", "none")
     step = None
     if quantity == "displacement":
         steps = [_grid_step(row, step_hint) for row in motion if not np.all(np.isnan(row))]

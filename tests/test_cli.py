@@ -119,6 +119,15 @@ def test_plan_reports_a_verified_optimum(capsys):
     assert json.loads(out)["stable"] is True
 
 
+def test_diagnose_names_the_record_file_that_is_too_short(capsys):
+    # the 1.1 s record cannot be split into a fit and a validation half of 1 s each: a one-line
+    # error that names the record's path, exit code 2
+    short = str(EXAMPLE / "records" / "cut_short")
+    code, out, err = _run(capsys, "diagnose", short, "--model", str(EXAMPLE / "truth" / "robot_at_cut.yaml"))
+    assert code == 2 and out == ""
+    assert err.strip().count("\n") == 0 and short in err and "found 1.1 s" in err, err
+
+
 def test_diagnose_on_the_clean_example_names_no_cause(capsys):
     code, out, err = _run(capsys, "diagnose", str(EXAMPLE / "records" / "cut_long"), "--model",
                           str(EXAMPLE / "truth" / "robot_at_cut.yaml"), "--json")

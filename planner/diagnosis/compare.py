@@ -193,23 +193,25 @@ def prepare_views(records: Sequence[Record], *, coefficients: CuttingCoefficient
     views = []
     for i, rec in enumerate(records):
         name = rec.name or f"record {i}"
+        # a record read from a file is named by its path; one made in memory by its name
+        src, pre = (rec.path, "") if rec.path is not None else (None, f"{name}: ")
         if rec.cut.spindle_rpm is None or not rec.cut.spindle_rpm > 0:
-            raise InputError(None, f"{name}: cut.spindle_rpm", "a positive spindle speed", repr(rec.cut.spindle_rpm))
+            raise InputError(src, f"{pre}cut.spindle_rpm", "a positive spindle speed", repr(rec.cut.spindle_rpm))
         if rec.cut.axial_depth_m is None or not rec.cut.axial_depth_m > 0:
-            raise InputError(None, f"{name}: cut.axial_depth_m", "a positive axial depth", repr(rec.cut.axial_depth_m))
+            raise InputError(src, f"{pre}cut.axial_depth_m", "a positive axial depth", repr(rec.cut.axial_depth_m))
         coef = coefficients
         if coef is None:
             coef = rec.material.cutting_coefficients if rec.material is not None else None
         if coef is None:
-            raise InputError(None, f"{name}: material.cutting_coefficients", "cutting coefficients", "none")
+            raise InputError(src, f"{pre}material.cutting_coefficients", "cutting coefficients", "none")
         sig = prepare_record(rec)
         fs = float(sig.sample_rate_hz)
         if sig.duration_s < min_duration_s:
-            raise InputError(None, f"{name}: signals", f"a cut window of at least {min_duration_s:g} s",
+            raise InputError(src, f"{pre}signals", f"a cut window of at least {min_duration_s:g} s",
                              f"{sig.duration_s:.3g} s")
         force = np.asarray(sig.force_N, dtype=float)
         if np.any(np.all(np.isnan(force), axis=1)):
-            raise InputError(None, f"{name}: signals", "force along X, Y and Z", "a missing force axis")
+            raise InputError(src, f"{pre}signals", "force along X, Y and Z", "a missing force axis")
         f_nom = float(rec.cut.spindle_rpm) / 60.0
         f_sp = refine_spindle_frequency_aliased(force, fs, f_nom, teeth=rec.tool.teeth, search=0.05)
         cut = replace(rec.cut, spindle_rpm=60.0 * f_sp)
