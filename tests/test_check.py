@@ -39,6 +39,7 @@ from planner.check_plots import VIOLATION_STYLE  # noqa: E402
 from planner.poses import PoseModels  # noqa: E402
 from planner.toolpath import Toolpath  # noqa: E402
 from planner.toolpath_io import read_toolpath  # noqa: E402
+from stability import zoa_batch  # noqa: E402
 from stability import zoa  # noqa: E402
 from stability.forced import default_harmonics  # noqa: E402
 from stability.lobes import predict_point  # noqa: E402
@@ -401,13 +402,13 @@ def test_repeated_poses_are_computed_once(example, monkeypatch):
                      ae=0.006, fz=5e-4, direction=(0.0, 1.0, 0.0), joints=poses[np.arange(n) % 3])
     path = replace(path, axial_depth_m=np.where(np.arange(n) % 2 == 0, 0.006, 0.015))
     computed = []
-    kernel = check_module._kernel()
+    kernel = zoa_batch.scan_kernel()
 
     def counting(fn, *args):
         computed.append(fn.shape[0])  # structure groups whose frequency grid is computed
         return kernel(fn, *args)
 
-    monkeypatch.setattr(check_module, "_kernel", lambda: counting)
+    monkeypatch.setattr(zoa_batch, "scan_kernel", lambda: counting)
     result = check_toolpath(path, models)
     assert sum(computed) == 3
     ev = result.evaluations
