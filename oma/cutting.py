@@ -7,7 +7,7 @@ sits at ``sin(phi) f + cos(phi) n`` from the tool axis.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np

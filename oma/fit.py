@@ -45,7 +45,7 @@ import numpy as np
 from scipy import optimize
 
 from ._arrays import readonly as _ro
-from ._linalg import blas_single_threaded, lstsq_normal
+from ._linalg import blas_single_threaded
 from .frf_table import AXES, FRFTable
 from .lscf import StabilisationDiagram, stabilisation_diagram
 from .modal import ModalModel, hz_to_rad_s

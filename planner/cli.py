@@ -15,7 +15,6 @@ import warnings
 from dataclasses import replace
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 

@@ -11,8 +11,8 @@ The problem (robomill issue 5)::
 
 How each function enters the NLP (smooth inside one pocket):
 
-* **Stability.** The lower envelope of the lobes is smooth between two adjacent lobe crossings
-  (one lobe branch), so the speed range is cut into *pockets* there. ZOA: the exact cusps of
+* **Stability** (:mod:`planner.pockets`). The lower envelope of the lobes is smooth between two
+  adjacent lobe crossings (one lobe branch), so the speed range is cut into *pockets* there. ZOA: the exact cusps of
   :func:`stability.zoa.envelope`, plus crossings it does not mark (two lobes with the same number
   from different modes: the chatter frequency jumps; bisected); in each pocket the limit is a
   Chebyshev series whose values are the exact envelope at Chebyshev-Lobatto nodes, the degree
@@ -23,9 +23,9 @@ How each function enters the NLP (smooth inside one pocket):
   pockets' answers. Pockets narrower than ``min_pocket_rel_width`` of their centre speed (hundreds
   of tiny lobes at low speed) are merged, and the merged region uses the lower convex hull of the
   pocket minima, one linear piece per NLP: conservative, and cheap.
-* **Surface location error** (Schmitz & Mann, IJMTM 46, 2006), exact and analytic for a modal
-  model: the force of a straight flute per unit depth has closed-form Fourier coefficients ``F_h``
-  over the engagement window (affine in fz: cutting part times fz plus edge part); a helix delays
+* **Surface location error** (:mod:`planner.cut_model`; Schmitz & Mann, IJMTM 46, 2006), exact
+  and analytic for a modal model: the force of a straight flute per unit depth has closed-form
+  Fourier coefficients ``F_h`` over the engagement window (affine in fz: cutting part times fz plus edge part); a helix delays
   the slice at height ``z`` by ``kappa z``, so the cut's harmonic is
   ``F_h (1 - exp(-i h N kappa ap)) / (i h N kappa)``; the receptance of each mode is rational in
   ``n``. Hence ``SLE = fz S_c(n, ap) + S_e(n, ap)`` with no interpolation in ``n`` or ``ap``
@@ -57,22 +57,19 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-
-from oma._arrays import readonly as _ro
 from scipy.interpolate import PchipInterpolator
 
-from oma.cutting import engagement_angles
+from oma._arrays import readonly as _ro
 from oma.errors import SetupError
-from stability import zoa
-from stability.forced import default_harmonics
-from stability.lobes import LobeDiagram, OperatingPoint, lobe_diagram, predict_point
-from stability.oriented import engaged_axial_integral, force_coefficients, helix_lag_per_m, torque_coefficients
+from stability.lobes import LobeDiagram, OperatingPoint, predict_point
 from stability.sdm import as_modal_model
+
+from .cut_model import CutModel
+from .pockets import Pocket, build_pockets, cheb_eval, sdm_pockets, zoa_pockets
 
 __all__ = ["PlanSettings", "PocketResult", "Plan", "plan", "CONSTRAINTS"]
 
 log = logging.getLogger(__name__)
-TWO_PI = 2.0 * np.pi
 
 #: Names used in ``active_constraints`` and ``infeasible_constraint``.
 CONSTRAINTS = ("stability", "surface_error", "force", "power", "torque",
@@ -153,397 +150,6 @@ class PlanSettings:
             raise ValueError(f"force_feed_nodes must be >= 8, found {self.force_feed_nodes}")
         if not 0 < self.recheck_rtol < 0.1 or not 0 <= self.backoff_slack < 0.1:
             raise ValueError("recheck_rtol must be in (0, 0.1) and backoff_slack in [0, 0.1)")
-
-
-# ------------------------------------------------------------------------------ Chebyshev series
-def _lobatto(m: int) -> np.ndarray:
-    """Chebyshev-Lobatto points ``cos(pi j / m)``, j = 0..m (from 1 down to -1)."""
-    return np.cos(np.pi * np.arange(m + 1) / m)
-
-
-def _cheb_coeffs(values) -> np.ndarray:
-    """Coefficients of the degree-m interpolant through values at :func:`_lobatto` (m) points."""
-    v = np.asarray(values, dtype=float)
-    m = v.size - 1
-    if m == 0:
-        return v.copy()
-    j = np.arange(m + 1)
-    w = np.ones(m + 1)
-    w[0] = w[-1] = 0.5
-    c = (2.0 / m) * (np.cos(np.pi * np.outer(j, j) / m) @ (w * v))
-    c[0] *= 0.5
-    c[-1] *= 0.5
-    return c
-
-
-def _cheb_eval(coeffs, x):
-    """Clenshaw sum of a Chebyshev series at ``x`` in [-1, 1]; NumPy arrays or CasADi symbols."""
-    b1, b2 = 0.0 * x, 0.0 * x
-    for c in coeffs[:0:-1]:
-        b1, b2 = 2.0 * x * b1 - b2 + c, b1
-    return x * b1 - b2 + coeffs[0]
-
-
-@dataclass(frozen=True)
-class _Pocket:
-    """One speed interval with a smooth stability limit ``a_lim(n)`` (Chebyshev series)."""
-
-    rpm_lo: float
-    rpm_hi: float
-    coeffs: np.ndarray
-    kind: str  # 'lobe' (ZOA exact), 'sampled' (SDM samples), 'hull' (merged narrow pockets)
-
-    def x(self, rpm):
-        return (2.0 * rpm - (self.rpm_lo + self.rpm_hi)) / (self.rpm_hi - self.rpm_lo)
-
-    def limit(self, rpm):
-        """Limit depth, m, at speeds inside the pocket (NumPy or CasADi)."""
-        return _cheb_eval(self.coeffs, self.x(rpm))
-
-
-# ------------------------------------------------------------------------------- stability model
-def _pocket_breaks_zoa(diagram: LobeDiagram, lo: float, hi: float, chatter_at) -> np.ndarray:
-    """Pocket ends: the diagram's cusps, plus cusps it does not mark.
-
-    Two lobes with the same number ``k`` from different modes (a robot mode's lobe 0 and a tool
-    mode's lobe 0) cross without an intersection point in :func:`stability.zoa.envelope`; there
-    the chatter frequency jumps between neighbouring grid speeds. Each such jump is bisected on
-    speed (``chatter_at(rpm) -> Hz``) to the crossing.
-    """
-    rpm = np.asarray(diagram.rpm)
-    f = np.asarray(diagram.chatter_frequency_hz)
-    inter = np.asarray(diagram.is_intersection)
-    cusps = list(rpm[inter])
-    i = np.flatnonzero(~inter[:-1] & ~inter[1:] & np.isfinite(f[:-1]) & np.isfinite(f[1:]))
-    jump = i[np.abs(np.log(f[i + 1] / f[i])) > np.log(1.0 + _CHATTER_JUMP)]
-    if jump.size:
-        a, b = rpm[jump].copy(), rpm[jump + 1].copy()
-        fa, fb = f[jump], f[jump + 1]
-        for _ in range(60):
-            mid = 0.5 * (a + b)
-            fm = chatter_at(mid)
-            left = np.abs(np.log(fm / fa)) < np.abs(np.log(fm / fb))
-            a, b = np.where(left, mid, a), np.where(left, b, mid)
-            if np.all(b - a <= 1e-10 * b):
-                break
-        cusps += list(0.5 * (a + b))
-        log.info("%d lobe crossings not marked in the diagram, located by bisection", jump.size)
-    cusps = np.asarray(cusps, dtype=float)
-    return np.unique(np.concatenate([[lo], cusps[(cusps > lo) & (cusps < hi)], [hi]]))
-
-
-# Relative jump of the chatter frequency between neighbouring speeds that marks a lobe change
-# (along one lobe it changes by well under 1 % between grid speeds).
-_CHATTER_JUMP = 0.05
-
-
-def _sdm_samples(diagram: LobeDiagram, limit_at, lo: float, hi: float, iterations: int):
-    """SDM samples with every cusp located by golden-section search, and the pocket ends.
-
-    The cusps of a sampled diagram are its local maxima; between the neighbouring samples the
-    envelope is unimodal (two lobe branches meeting), so each is refined by golden-section steps
-    (``limit_at(rpm_array) -> depth_array``, all cusps at once). Returns the speeds and limits
-    of all samples (sorted) and the breaks (range ends and refined cusps).
-    """
-    r = np.asarray(diagram.rpm, dtype=float)
-    d = np.asarray(diagram.depth_limit_m, dtype=float)
-    d = np.where(np.isfinite(d), d, 1.0)  # no limit found below the search depth
-    peak = np.flatnonzero((d[1:-1] > d[:-2]) & (d[1:-1] >= d[2:])) + 1
-    extra_r, extra_d = [], []
-    best_r, best_d = r[peak].copy(), d[peak].copy()
-    if peak.size and iterations > 0:
-        g = (np.sqrt(5.0) - 1.0) / 2.0
-        a, b = r[peak - 1].copy(), r[peak + 1].copy()
-        c, e = b - g * (b - a), a + g * (b - a)
-        fc, fe = limit_at(c), limit_at(e)
-        extra_r += [c, e]
-        extra_d += [fc, fe]
-        for _ in range(iterations - 1):
-            left = fc >= fe  # the maximum is in [a, e]
-            a, b = np.where(left, a, c), np.where(left, e, b)
-            new = np.where(left, b - g * (b - a), a + g * (b - a))
-            fn = limit_at(new)
-            c, fc, e, fe = (np.where(left, new, e), np.where(left, fn, fe), np.where(left, c, new),
-                            np.where(left, fc, fn))
-            extra_r.append(new)
-            extra_d.append(fn)
-        allr = np.concatenate([r[peak][None]] + [x[None] for x in extra_r])
-        alld = np.concatenate([d[peak][None]] + [x[None] for x in extra_d])
-        i = np.argmax(alld, axis=0)
-        best_r, best_d = allr[i, np.arange(peak.size)], alld[i, np.arange(peak.size)]
-    rr = np.concatenate([r] + extra_r)
-    dd = np.concatenate([d] + [np.where(np.isfinite(x), x, 1.0) for x in extra_d])
-    rr, idx = np.unique(rr, return_index=True)
-    breaks = np.unique(np.concatenate([[lo], best_r[(best_r > lo) & (best_r < hi)], [hi]]))
-    return rr, dd[idx], breaks
-
-
-def _lower_hull(x, y):
-    """Vertices of the lower convex hull of points sorted by x (monotone chain)."""
-    hull = []
-    for p in zip(x, y):
-        while len(hull) >= 2:
-            (x1, y1), (x2, y2) = hull[-2], hull[-1]
-            if (x2 - x1) * (p[1] - y1) - (y2 - y1) * (p[0] - x1) <= 0:
-                hull.pop()
-            else:
-                break
-        hull.append(p)
-    return np.array(hull)
-
-
-def _linear_pocket(x0, y0, x1, y1) -> _Pocket:
-    return _Pocket(float(x0), float(x1), np.array([(y0 + y1) / 2.0, (y1 - y0) / 2.0]), "hull")
-
-
-# A Chebyshev series of the SDM's PCHIP (only once differentiable at the samples) is accepted at
-# this relative accuracy: well inside the SDM's own (PlanSettings.sdm_rtol = 1 %).
-_SAMPLED_CHEB_RTOL = 1e-3
-
-
-def _build_pockets(breaks, value_fn, settings: PlanSettings, *, sampled: bool, merge: bool = True) -> list[_Pocket]:
-    """Pockets between consecutive breaks; narrow ones merged into lower-hull pieces (``merge``).
-
-    ``value_fn(rpm_array) -> depth_array`` gives the limit (exact ZOA, or the SDM PCHIP).
-    """
-    lo, hi = breaks[:-1], breaks[1:]
-    narrow = (hi - lo) / (0.5 * (hi + lo)) < settings.min_pocket_rel_width
-    if not merge:
-        narrow[:] = False
-    pockets: list[_Pocket] = []
-    wide = np.flatnonzero(~narrow)
-    # --- wide pockets: Chebyshev series, degree doubled until converged (ZOA) -------------------
-    degree = {int(i): 16 for i in wide}
-    coeffs: dict[int, np.ndarray] = {}
-    pending = list(degree)
-    while pending:
-        nodes = {i: 0.5 * (lo[i] + hi[i]) + 0.5 * (hi[i] - lo[i]) * _lobatto(2 * degree[i]) for i in pending}
-        allr = np.concatenate([nodes[i] for i in pending])
-        vals = value_fn(allr)
-        again, k = [], 0
-        for i in pending:
-            v = vals[k:k + nodes[i].size]
-            k += nodes[i].size
-            v = np.where(np.isfinite(v), v, 1.0)  # no limit found: any depth (bounded by ap_hi)
-            c_half = _cheb_coeffs(v[::2])
-            err = np.max(np.abs(_cheb_eval(c_half, _lobatto(2 * degree[i])[1::2]) - v[1::2]))
-            rtol = _SAMPLED_CHEB_RTOL if sampled else settings.cheb_rtol
-            if err <= rtol * np.min(v) or degree[i] >= 64:
-                if err > rtol * np.min(v):
-                    log.info("pocket %.0f-%.0f rpm: Chebyshev series not converged (rel. error %.1e)",
-                             lo[i], hi[i], err / np.min(v))
-                coeffs[i] = _cheb_coeffs(v)
-            else:
-                degree[i] *= 2
-                again.append(i)
-        pending = again
-    # --- runs of narrow pockets: lower convex hull of the pocket minima -------------------------
-    runs, i = [], 0
-    while i < narrow.size:
-        if narrow[i]:
-            j = i
-            while j + 1 < narrow.size and narrow[j + 1]:
-                j += 1
-            runs.append((i, j))
-            i = j + 1
-        else:
-            i += 1
-    hull_pockets: dict[int, list[_Pocket]] = {}
-    for i, j in runs:
-        r = np.concatenate([np.linspace(lo[p], hi[p], 9) for p in range(i, j + 1)])
-        v = value_fn(r).reshape(j - i + 1, 9)
-        v = np.where(np.isfinite(v), v, 1.0)
-        rr = r.reshape(j - i + 1, 9)
-        arg = np.argmin(v, axis=1)
-        xm, ym = rr[np.arange(arg.size), arg], v[np.arange(arg.size), arg]
-        # ends of the run: the envelope there, so the hull spans the whole run
-        xs = np.concatenate([[lo[i]], xm, [hi[j]]])
-        ys = np.concatenate([[min(v[0, 0], ym.min())], ym, [min(v[-1, -1], ym.min())]])
-        order = np.argsort(xs, kind="stable")
-        xs, ys = xs[order], ys[order]
-        keep = np.concatenate([[True], np.diff(xs) > 0])
-        h = _lower_hull(xs[keep], ys[keep])
-        hull_pockets[i] = [_linear_pocket(*h[q], *h[q + 1]) for q in range(len(h) - 1)]
-    for p in range(lo.size):
-        if p in coeffs:
-            pockets.append(_Pocket(float(lo[p]), float(hi[p]), coeffs[p], "sampled" if sampled else "lobe"))
-        elif p in hull_pockets:
-            pockets.extend(hull_pockets[p])
-    return pockets
-
-
-# --------------------------------------------------------------------------------- process model
-def _window_harmonics(st: float, ex: float, teeth: int, n_harm: int) -> np.ndarray:
-    """``W[h, k] = (N / 2 pi) int_st^ex b_k(psi) exp(-i h N psi) dpsi``, shape (n_harm + 1, 6).
-
-    The Fourier coefficients, over one tooth period, of the engaged basis ``(1, s, c, s^2, c^2, s c)``
-    summed over the teeth (straight flute, per unit depth), in closed form from
-    ``b_k = sum_m w_km exp(i m psi)``.
-    """
-    w = {0: {0: 1.0}, 1: {1: -0.5j, -1: 0.5j}, 2: {1: 0.5, -1: 0.5},
-         3: {0: 0.5, 2: -0.25, -2: -0.25}, 4: {0: 0.5, 2: 0.25, -2: 0.25}, 5: {2: -0.25j, -2: 0.25j}}
-    h = np.arange(n_harm + 1)
-    out = np.zeros((n_harm + 1, 6), dtype=complex)
-    for k, terms in w.items():
-        for m, wk in terms.items():
-            mu = (m - h * teeth).astype(float)
-            safe = np.where(mu == 0, 1.0, mu)
-            integral = np.where(mu == 0, ex - st,
-                                (np.exp(1j * safe * ex) - np.exp(1j * safe * st)) / (1j * safe))
-            out[:, k] += wk * integral
-    return teeth / TWO_PI * out
-
-
-class _CutModel:
-    """Surface error, peak force/torque and power of one cut as functions of ``(n, ap, fz)``."""
-
-    def __init__(self, model, tool, cut, coef):
-        self.model, self.tool, self.cut, self.coef = model, tool, cut, coef
-        self.teeth = int(tool.teeth)
-        self.kappa = helix_lag_per_m(tool)
-        self.st, self.ex = engagement_angles(tool, cut)
-        self.phi_fin, self.sign = (np.pi, 1.0) if cut.milling == "down" else (0.0, -1.0)
-        self.fc_e = force_coefficients(coef, 0.0)  # (3, 6) cut frame, edge part
-        self.fc_c = force_coefficients(coef, 1.0) - self.fc_e  # per unit feed
-        radius = tool.diameter_m / 2.0
-        self.tc_e = torque_coefficients(coef, 0.0, radius)
-        self.tc_c = torque_coefficients(coef, 1.0, radius) - self.tc_e
-        w0 = _window_harmonics(self.st, self.ex, self.teeth, 0)[0].real
-        self.tau_c, self.tau_e = float(self.tc_c @ w0), float(self.tc_e @ w0)  # mean torque / depth
-        self._sle_cache: dict[int, ca.Function] = {}
-        self._coeff_cache: dict[int, dict] = {}
-        self._phi_grid = (TWO_PI / self.teeth) * np.arange(4096) / 4096
-
-    # ---- power (exact) ---------------------------------------------------------------------------
-    def power(self, rpm, ap, fz):
-        """Mean spindle power, W (NumPy or CasADi)."""
-        return TWO_PI * rpm / 60.0 * ap * (self.tau_c * fz + self.tau_e)
-
-    # ---- surface location error (exact, analytic) ------------------------------------------------
-    def _sle_coeffs(self, n_harm: int):
-        """Coefficients of ``S_c`` (per unit feed) and ``S_e``, cached per harmonic count.
-
-        ``S = s0 ap + 2 Re sum_h [beta_h + sum_r alpha_hr / D_r(h f_T)] hel_h(ap)`` with the wall
-        rotation ``exp(i h N phi_fin)`` folded into ``alpha`` and ``beta``, ``D_r = 1 - rho^2 +
-        2 i zeta_r rho`` and ``hel_h = int_0^ap exp(-i theta_h z) dz``.
-        """
-        if n_harm in self._coeff_cache:
-            return self._coeff_cache[n_harm]
-        m, n_t = self.model, self.teeth
-        nvec = self.cut.normal_direction
-        wh = _window_harmonics(self.st, self.ex, n_t, n_harm)  # (H+1, 6)
-        h = np.arange(1, n_harm + 1)
-        rot = np.exp(1j * h * n_t * self.phi_fin)
-        modes = [r for r in range(m.n_modes) if abs(float(nvec @ m.directions[r])) >= 1e-12]
-        static, beta, alpha = np.zeros(2), np.zeros((2, n_harm), complex), np.zeros((2, len(modes), n_harm), complex)
-        for p, fc in enumerate((self.fc_c, self.fc_e)):
-            force_h = self.cut.frame.T @ (fc @ wh.T)  # (3, H+1) machine frame, per unit depth
-            static[p] = self.sign * float(nvec @ m.static_compliance_m_N @ force_h[:, 0].real)
-            beta[p] = self.sign * (nvec @ m.residual_compliance_m_N @ force_h[:, 1:]) * rot
-            for q, r in enumerate(modes):
-                proj = self.sign * float(nvec @ m.directions[r])
-                alpha[p, q] = proj * (m.directions[r] @ force_h[:, 1:]) * rot / m.stiffness_N_m[r]
-        out = dict(h=h, theta=h * n_t * self.kappa, static=static, beta=beta, alpha=alpha,
-                   fn=m.natural_frequency_hz[modes], zeta=m.damping_ratio[modes])
-        self._coeff_cache[n_harm] = out
-        return out
-
-    def sle_parts(self, rpm, ap, n_harm: int):
-        """``(S_c, S_e)`` at arrays ``rpm``, ``ap`` of one shape (NumPy; the same sums as
-        :meth:`sle_function`), m (``S_c`` per unit feed)."""
-        c = self._sle_coeffs(n_harm)
-        rpm, ap = np.broadcast_arrays(np.asarray(rpm, dtype=float), np.asarray(ap, dtype=float))
-        shape = rpm.shape
-        rpm, ap = rpm.ravel()[:, None], ap.ravel()[:, None]
-        theta = c["theta"][None, :]
-        hel = ap + 0j if not self.kappa else (1.0 - np.exp(-1j * theta * ap)) / (1j * theta)
-        rho = c["h"][None, None, :] * (self.teeth * rpm / 60.0)[:, None, :] / c["fn"][None, :, None]
-        inv_d = 1.0 / (1.0 - rho**2 + 2j * c["zeta"][None, :, None] * rho)  # (P, R, H)
-        out = []
-        for p in range(2):
-            acc = c["beta"][p][None, :] + np.einsum("rh,prh->ph", c["alpha"][p], inv_d)
-            out.append((c["static"][p] * ap[:, 0] + 2.0 * np.real(np.sum(acc * hel, axis=1))).reshape(shape))
-        return out
-
-    def sle_function(self, n_harm: int) -> ca.Function:
-        """``(rpm, ap) -> (S_c, S_e)`` with ``SLE = fz S_c + S_e``, m (CasADi, for the NLP)."""
-        if n_harm in self._sle_cache:
-            return self._sle_cache[n_harm]
-        c = self._sle_coeffs(n_harm)
-        rpm, ap = ca.SX.sym("rpm"), ca.SX.sym("ap")
-        f_tooth = self.teeth * rpm / 60.0
-        if self.kappa:
-            th = ca.DM(c["theta"])
-            hel_re, hel_im = ca.sin(th * ap) / th, -(1.0 - ca.cos(th * ap)) / th
-        else:
-            hel_re, hel_im = ca.DM.ones(n_harm) * ap, ca.DM.zeros(n_harm) * ap
-        out = []
-        for p in range(2):
-            acc_re, acc_im = ca.DM(c["beta"][p].real) + 0 * ap, ca.DM(c["beta"][p].imag) + 0 * ap
-            for q in range(c["fn"].size):
-                rho = ca.DM(c["h"] / c["fn"][q]) * f_tooth
-                a_re, a_im = 1.0 - rho**2, 2.0 * c["zeta"][q] * rho
-                den = a_re**2 + a_im**2
-                g_re, g_im = a_re / den, -a_im / den  # 1 / D
-                al_re, al_im = ca.DM(c["alpha"][p, q].real), ca.DM(c["alpha"][p, q].imag)
-                acc_re = acc_re + al_re * g_re - al_im * g_im
-                acc_im = acc_im + al_re * g_im + al_im * g_re
-            out.append(c["static"][p] * ap + 2.0 * ca.sum1(acc_re * hel_re - acc_im * hel_im))
-        fn = ca.Function(f"sle_{n_harm}", [rpm, ap], out, ["rpm", "ap"], ["S_c", "S_e"])
-        self._sle_cache[n_harm] = fn
-        return fn
-
-    def harmonics_at(self, rpm_lo: float) -> int:
-        return default_harmonics(self.model, self.tool, rpm_lo)
-
-    # ---- peak force and torque (speed-independent) ----------------------------------------------
-    def peaks(self, ap: float, fz) -> tuple[np.ndarray, np.ndarray]:
-        """Largest in-plane force (N) and torque (N m) over a tooth period, at one depth and feeds
-        ``fz`` (array): a fine angle grid plus both sides of every entry/exit angle."""
-        fz = np.atleast_1d(np.asarray(fz, dtype=float))
-        pitch = TWO_PI / self.teeth
-        lag = self.kappa * ap
-        base = np.array([self.st, self.ex, self.st + lag, self.ex + lag])
-        crit = np.mod(base[:, None] - pitch * np.arange(self.teeth), pitch).ravel()
-        eps = 1e-9 * pitch
-        phi = np.concatenate([self._phi_grid, crit - eps, crit, crit + eps])
-        e = engaged_axial_integral(self.tool, self.cut, phi, ap)  # (M, 6)
-        fe, fcut = e @ self.fc_e[:2].T, e @ self.fc_c[:2].T  # (M, 2): f, n components
-        f = fe[None] + fz[:, None, None] * fcut[None]
-        force = np.max(np.hypot(f[..., 0], f[..., 1]), axis=1)
-        torque = np.max((e @ self.tc_e)[None] + fz[:, None] * (e @ self.tc_c)[None], axis=1)
-        return force, torque
-
-    def depth_boundary(self, which: int, limit: float, feeds, ap_lo: float, ap_hi: float) -> np.ndarray:
-        """Largest depth (first crossing) with peak force (``which=0``) or torque (1) <= limit, per
-        feed; ``2 ap_hi`` where the limit is not reached below that."""
-        feeds = np.asarray(feeds, dtype=float)
-        grid = np.geomspace(0.25 * ap_lo, 2.0 * ap_hi, 25)
-        vals = np.array([self.peaks(a, feeds)[which] for a in grid])  # (n_ap, n_feed)
-        out = np.full(feeds.size, 2.0 * ap_hi)
-        for j in range(feeds.size):
-            over = np.flatnonzero(vals[:, j] > limit)
-            if over.size == 0:
-                continue
-            i = over[0]
-            if i == 0:  # below the grid: the peak is close to proportional to the depth there
-                out[j] = grid[0] * limit / vals[0, j]
-                continue
-            a, b = grid[i - 1], grid[i]
-            ga, gb = vals[i - 1, j] - limit, vals[i, j] - limit
-            for _ in range(40):  # Illinois regula falsi
-                c = b - gb * (b - a) / (gb - ga)
-                gc = self.peaks(c, feeds[j:j + 1])[which][0] - limit
-                if gc > 0:
-                    b, gb = c, gc
-                    ga *= 0.5
-                else:
-                    a, ga = c, gc
-                    gb *= 0.5
-                if b - a <= 1e-10 * b or gc == 0:
-                    break
-            out[j] = a
-        return out
 
 
 # --------------------------------------------------------------------------------------- results
@@ -723,7 +329,7 @@ class _Problem:
     def __init__(self, setup, model, settings: PlanSettings):
         self.setup, self.settings = setup, settings
         self.b = _bounds(setup)
-        self.cm = _CutModel(model, setup.tool, setup.cut, setup.material.cutting_coefficients)
+        self.cm = CutModel(model, setup.tool, setup.cut, setup.material.cutting_coefficients)
         fz_lo, fz_hi = self.b.fz
         self.fixed_feed = fz_hi <= fz_lo
         # The spline's grid reaches 5 % of the feed range beyond each bound: a B-spline is zero
@@ -750,7 +356,7 @@ class _Problem:
         u, inv = np.unique(np.asarray(fz, dtype=float), return_inverse=True)  # few distinct feeds
         return np.asarray(fn(u[None, :])).ravel()[inv].reshape(np.shape(fz))
 
-    def masks(self, pocket: _Pocket, n_harm, rpm, ap, fz, factors, sle_parts=None) -> dict[str, np.ndarray]:
+    def masks(self, pocket: Pocket, n_harm, rpm, ap, fz, factors, sle_parts=None) -> dict[str, np.ndarray]:
         """Which constraints hold at points ``(rpm, ap, fz)`` (arrays of one shape), as the NLP sees
         them (back-off factors included); ``sle_parts`` may give ``(S_c, S_e)`` at the points."""
         b = self.b
@@ -766,7 +372,7 @@ class _Problem:
             out["power"] = self.cm.power(rpm, ap, fz) <= factors["power"] * b.power
         return out
 
-    def seed(self, pocket: _Pocket, n_harm: int, factors):
+    def seed(self, pocket: Pocket, n_harm: int, factors):
         """Best point of a pocket's start grid (or the least violating one) and the constraint masks.
 
         Speeds at Chebyshev points of the pocket (its ends included), depths geometric from the
@@ -817,7 +423,7 @@ class _Problem:
         return np.array([pts[0][idx], pts[1][idx], pts[2][idx]]), bool(ok.any()), masks
 
     # ---- the NLP ---------------------------------------------------------------------------------
-    def harmonics(self, pocket: _Pocket) -> int:
+    def harmonics(self, pocket: Pocket) -> int:
         """Harmonics for a pocket: the default at its lowest speed, rounded up to a short ladder so
         that few NLPs are built (more harmonics only add accuracy)."""
         need = self.cm.harmonics_at(pocket.rpm_lo)
@@ -848,7 +454,7 @@ class _Problem:
         else:
             opti.subject_to(opti.bounded(b.fz[0] / FEED_SCALE, xf, b.fz[1] / FEED_SCALE))
         x_cheb = (2.0 * rpm - (rpm_lo + rpm_hi)) / (rpm_hi - rpm_lo)
-        limit = _cheb_eval(ca.vertsplit(coef), x_cheb)
+        limit = cheb_eval(ca.vertsplit(coef), x_cheb)
         opti.subject_to(xa <= factor["stability"] * b.margin * limit / DEPTH_SCALE)
         if b.sle is not None:
             s_c, s_e = sle_fn(rpm, ap)
@@ -873,7 +479,7 @@ class _Problem:
                        {k: v * (1 + rtol) for k, v in factors.items()})
         return all(bool(v.all()) for v in m.values())
 
-    def solve_pocket(self, pocket: _Pocket, factors):
+    def solve_pocket(self, pocket: Pocket, factors):
         """Seed grid, then IPOPT from its best point. Returns (seed, answer, feasible, status, masks)."""
         n_harm = self.harmonics(pocket)
         nlp = self.nlp(n_harm)
@@ -970,7 +576,7 @@ def _refine_sdm(prob, pockets, results, samples, sdm_limit, setup, settings: Pla
         pchip = PchipInterpolator(samples[0], samples[1])
         for i in todo:
             p = pockets[i]
-            pockets[i] = _build_pockets(np.array([p.rpm_lo, p.rpm_hi]), pchip, settings, sampled=True,
+            pockets[i] = build_pockets(np.array([p.rpm_lo, p.rpm_hi]), pchip, settings, sampled=True,
                                         merge=False)[0]
             seed, x, ok, status, _ = prob.solve_pocket(pockets[i], ones)
             results[i] = replace(results[i], start=_ro(seed), solution=_ro(x),
@@ -1025,9 +631,9 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
     if method == "auto":
         method = "sdm" if cut.radial_depth_m / tool.diameter_m < settings.sdm_below_immersion else "zoa"
     if method == "zoa":
-        diagram, pockets = _zoa_pockets(model, setup, b.rpm, settings)
+        diagram, pockets = zoa_pockets(model, setup, b.rpm, settings)
     else:
-        diagram, pockets, samples, sdm_limit = _sdm_pockets(model, setup, b.rpm, settings)
+        diagram, pockets, samples, sdm_limit = sdm_pockets(model, setup, b.rpm, settings)
     log.info("%d pockets (%s)", len(pockets), method)
 
     ones = {k: 1.0 for k in _PROCESS}
@@ -1069,44 +675,6 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
     return Plan(converged, "optimal" if converged else "not_converged", msg, spindle_rpm=float(x[0]),
                 axial_depth_m=float(x[1]), feed_per_tooth_m=float(x[2]), mrr_m3_s=_mrr(setup, x),
                 active_constraints=active, infeasible_constraint=None, point=point, **common)
-
-
-def _zoa_pockets(model, setup, rpm_range, settings: PlanSettings):
-    """ZOA: the diagram and the pockets."""
-    tool, cut, coef = setup.tool, setup.cut, setup.material.cutting_coefficients
-    lo, hi = rpm_range
-    curves = zoa.limit_curves(model, tool, cut, coef, zoa.default_chatter_frequencies(model, n_freq=settings.n_freq))
-    diagram = lobe_diagram(model, tool, cut, coef, rpm_range=rpm_range, n_rpm=settings.n_rpm_zoa, n_freq=settings.n_freq)
-
-    def envelope(r):
-        """Depth limit and chatter frequency of the envelope at the speeds ``r`` (cusps excluded)."""
-        u, inv = np.unique(np.asarray(r, dtype=float), return_inverse=True)
-        env = zoa.envelope(model, tool, cut, coef, u, curves=curves)
-        keep = ~np.asarray(env.is_intersection)
-        return np.asarray(env.depth_limit_m)[keep][inv], np.asarray(env.chatter_frequency_hz)[keep][inv]
-
-    breaks = _pocket_breaks_zoa(diagram, lo, hi, lambda r: envelope(r)[1])
-    return diagram, _build_pockets(breaks, lambda r: envelope(r)[0], settings, sampled=False)
-
-
-def _sdm_pockets(model, setup, rpm_range, settings: PlanSettings):
-    """SDM: the diagram, the pockets, the samples (speeds, limits) and the limit function."""
-    tool, cut, coef = setup.tool, setup.cut, setup.material.cutting_coefficients
-    diagram = lobe_diagram(model, tool, cut, coef, rpm_range=rpm_range, n_rpm=settings.n_rpm_sdm, method="sdm",
-                           rtol=settings.sdm_rtol)
-    res = diagram.resolution
-
-    def sdm_limit(r):
-        """SDM limits at more speeds, at the diagram's resolution (no new convergence test)."""
-        u, inv = np.unique(np.asarray(r, dtype=float), return_inverse=True)
-        more = lobe_diagram(model, tool, cut, coef, rpm_range=(u[0], u[-1] + 1.0), rpm=u, method="sdm",
-                            rtol=settings.sdm_rtol, steps_per_mode_period=res.steps_per_mode_period,
-                            min_steps=res.min_steps)
-        return np.asarray(more.depth_limit_m)[inv]
-
-    rr, dd, breaks = _sdm_samples(diagram, sdm_limit, *rpm_range, settings.sdm_cusp_iterations)
-    pockets = _build_pockets(breaks, PchipInterpolator(rr, dd), settings, sampled=True)
-    return diagram, pockets, [rr, dd], sdm_limit
 
 
 def _verify(prob: _Problem, pockets, results, predict, setup, settings: PlanSettings):

@@ -3,8 +3,6 @@ function takes results, computes no physics, and returns ``(fig, ax)`` or the fi
 
 from __future__ import annotations
 
-import numpy as np
-
 __all__ = ["plot_record"]
 
 

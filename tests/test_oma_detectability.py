@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from scipy import signal as sps
 
 from oma.detectability import detectability, peak_to_valley_unit
 from oma.modal import ModalModel

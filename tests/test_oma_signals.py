@@ -6,7 +6,7 @@ from dataclasses import replace
 
 from oma.errors import RecordError
 from oma.signals import detrend, integrate_frequency_domain, prepare_record, window_slice
-from oma.synthetic import paper_like_model, synthetic_record
+from oma.synthetic import synthetic_record
 from oma.cutting import Sensors
 
 FS = 1000.0

@@ -28,7 +28,9 @@ from oma.cutting import Cut, CuttingCoefficients, Material, Tool
 from oma.errors import SetupError
 from oma.frf_table import FRFTable
 from oma.modal_io import read_modal_model
-from planner.optimize import CONSTRAINTS, Plan, PlanSettings, _CutModel, _diagnose, _zoa_pockets, plan
+from planner.cut_model import CutModel
+from planner.optimize import CONSTRAINTS, Plan, PlanSettings, _diagnose, plan
+from planner.pockets import zoa_pockets
 from stability import zoa
 from stability.lobes import lobe_diagram, predict_point
 from stability.setup import Limits, Setup
@@ -134,7 +136,7 @@ def test_cut_model_matches_predict_point(planning_model, example_setup, milling,
     tool = replace(example_setup.tool, helix_rad=np.deg2rad(helix_deg))
     cut = replace(example_setup.cut, milling=milling)
     coef = example_setup.material.cutting_coefficients
-    model = _CutModel(planning_model, tool, cut, coef)
+    model = CutModel(planning_model, tool, cut, coef)
     rng = np.random.default_rng(5)
     rpm, ap, fz = rng.uniform(500, 24000, 6), rng.uniform(5e-4, 3e-2, 6), rng.uniform(5e-5, 6e-4, 6)
     got, want = [], []
@@ -263,7 +265,7 @@ def test_tiny_low_speed_lobes_merge_into_a_conservative_hull(example_setup, plan
     """150-900 rpm: over a hundred lobes narrower than 2 % of their speed are merged; the hull of
     their minima stays below the exact envelope (to the sampling of each lobe's minimum at 9
     speeds: measured 8e-7 above at most), and the wide pockets' series match it."""
-    diagram, pockets = _zoa_pockets(planning_model, example_setup, (150.0, 900.0), PlanSettings(n_rpm_zoa=1000))
+    diagram, pockets = zoa_pockets(planning_model, example_setup, (150.0, 900.0), PlanSettings(n_rpm_zoa=1000))
     assert np.count_nonzero(diagram.is_intersection) > 100
     assert any(p.kind == "hull" for p in pockets) and len(pockets) < 40
     env = zoa.envelope(planning_model, example_setup.tool, example_setup.cut,

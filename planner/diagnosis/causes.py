@@ -322,7 +322,6 @@ def fit_delay(parts: Parts) -> Extension:
     if not st.views:
         return _failed("channel_delay", "structure", "no displacement")
     delayers = [Delayer(p, v.sample_rate_hz) for p, v in zip(st.baseline, st.views)]
-    fs = st.views[0].sample_rate_hz
 
     def cost(tau):
         return _structure_objective(parts, [d(tau) for d in delayers])
