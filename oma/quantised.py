@@ -373,7 +373,8 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
         phi_new = phi_ + delta[n_th:n_shared].reshape(n_m, n_in)
         beta_new = beta_ + delta[n_shared : n_shared + n_out * k_own].reshape(n_out, k_own)
         # the error scale follows the floor the model sets (the response to the force's noise)
-        lsig_new = np.maximum(lsig_ + np.clip(delta[n_shared + n_out * k_own :], -1.0, 1.0), scale_floor(th_new, phi_new))
+        lsig_new = np.maximum(lsig_ + np.clip(delta[n_shared + n_out * k_own :], -1.0, 1.0),
+                              scale_floor(th_new, phi_new))
         forced_new, own_new = columns(th_new)
         own_s_new = own_new / own_scale
         return ((th_new, phi_new, beta_new, lsig_new, forced_new, own_s_new),

@@ -21,25 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ._fields import (
-    DEG_TO_RAD,
-    STANDARD_GRAVITY_M_S2,
-    Fields,
-    UnitScale,
-    csv_text,
-    describe,
-    dump_cut,
-    dump_material,
-    dump_sensors,
-    dump_tool,
-    dump_yaml,
-    load_yaml,
-    parse_cut,
-    parse_material,
-    parse_sensors,
-    parse_tool,
-    read_csv_table,
-)
+from ._fields import DEG_TO_RAD, STANDARD_GRAVITY_M_S2, Fields, UnitScale, csv_text, describe, dump_yaml, load_yaml
+from ._fields import read_csv_table
+from ._sections import dump_cut, dump_material, dump_sensors, dump_tool, parse_cut, parse_material, parse_sensors
+from ._sections import parse_tool
 from .errors import RecordError
 from .io import atomic_write
 from .record import AXES, Channel, Record

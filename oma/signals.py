@@ -209,7 +209,8 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
             motion = np.array(record.vector(quantity)[:, sl])
             break
     else:
-        raise RecordError(record.path, _signals_field(record), "displacement, velocity or acceleration channels", "none")
+        raise RecordError(record.path, _signals_field(record), "displacement, velocity or acceleration channels",
+                          "none")
     step = None
     if quantity == "displacement":
         steps = [_grid_step(row, step_hint) for row in motion if not np.all(np.isnan(row))]

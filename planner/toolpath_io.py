@@ -20,21 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from oma._fields import (
-    DIRECTION_LENGTH_TOLERANCE,
-    csv_text,
-    describe,
-    dump_limits,
-    dump_material,
-    dump_tool,
-    dump_yaml,
-    load_yaml,
-    parse_limits,
-    parse_material,
-    parse_tool,
-    read_csv_table,
-    warn_user,
-)
+from oma._fields import DIRECTION_LENGTH_TOLERANCE, csv_text, describe, dump_yaml, load_yaml, read_csv_table, warn_user
+from oma._sections import dump_limits, dump_material, dump_tool, parse_limits, parse_material, parse_tool
 from oma.errors import ToolpathError
 from oma.io import atomic_write
 from stability.setup import Limits

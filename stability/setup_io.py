@@ -10,18 +10,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from oma._fields import (
-    dump_cut,
-    dump_limits,
-    dump_material,
-    dump_tool,
-    dump_yaml,
-    load_yaml,
-    parse_cut,
-    parse_limits,
-    parse_material,
-    parse_tool,
-)
+from oma._fields import dump_yaml, load_yaml
+from oma._sections import dump_cut, dump_limits, dump_material, dump_tool, parse_cut, parse_limits, parse_material
+from oma._sections import parse_tool
 from oma.errors import SetupError
 from oma.io import atomic_write
 
