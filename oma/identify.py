@@ -39,13 +39,16 @@ from .signals import PreparedSignals, prepare_record
 from .synthetic import simulate_response
 from .timefit import NoModeFound, TimeFit, fit_time_domain
 
-__all__ = ["Identification", "identify", "modal_mapping", "frf_agreement", "METHODS"]
+__all__ = ["Identification", "identify", "modal_mapping", "frf_agreement", "METHODS", "ROBOT_BAND_HZ"]
 
 AXES = ("X", "Y", "Z")
 METHODS = ("default", "h1")
 #: Upper end of the default fit band, Hz: robot structural modes sit at 8-40 Hz (DOMAIN.md); pass
 #: ``band_hz`` to fit spindle or tool modes higher up.
 MAX_BAND_HZ = 100.0
+#: Band of the robot's structural modes, Hz, where an identified FRF is compared with a hammer test
+#: (``robomill identify --reference``, the demo).
+ROBOT_BAND_HZ = (5.0, 40.0)
 #: The default method starts from the H1 fit only when the Welch lines are at most this far apart,
 #: Hz: the half-power band 2 zeta f_n of a 5 %-damped 5 Hz mode. Coarser (short records): the
 #: time-domain fit searches for the modes itself.

@@ -56,9 +56,11 @@ def _emit(args, payload: dict, human: Callable[[dict], str] | str) -> None:
 # Each handler returns an exit code. Library imports happen inside, so `robomill --help` is fast.
 
 
-def _load_structure(paths: Sequence[str], axes: Sequence[str] | None = None):
+def _load_structure(paths: Sequence[str], axes: Sequence[str] | None = None, *, option: str = "--model",
+                    axis_option: str = "--axis"):
     """A modal model (one ``.yaml``) or measured FRFs (``.csv``, ``.uff``, ``.frf``; several files
-    are merged into one table, e.g. an XX and a YY ``.frf``, whose axes ``--axis`` gives in order)."""
+    are merged into one table, e.g. an XX and a YY ``.frf``, whose axes ``axis_option`` gives in
+    order). ``option`` names the argument in error messages."""
     from oma.frf_io import read_frf
     from oma.frf_table import FRFTable
     from oma.modal_io import read_modal_model
@@ -66,15 +68,15 @@ def _load_structure(paths: Sequence[str], axes: Sequence[str] | None = None):
     suffixes = [Path(p).suffix.lower() for p in paths]
     if any(s in (".yaml", ".yml") for s in suffixes):
         if len(paths) != 1:
-            raise UsageError("--model", "one modal model (.yaml), or FRF files only", f"{len(paths)} files")
+            raise UsageError(option, "one modal model (.yaml), or FRF files only", f"{len(paths)} files")
         return read_modal_model(paths[0])
     for path, suffix in zip(paths, suffixes):
         if suffix not in (".csv", ".uff", ".unv", ".frf"):
-            raise UsageError("--model", "a modal model (.yaml) or FRF files (.csv, .uff, .frf)", repr(path))
+            raise UsageError(option, "a modal model (.yaml) or FRF files (.csv, .uff, .frf)", repr(path))
     frf_files = [p for p, s in zip(paths, suffixes) if s == ".frf"]
     axes = list(axes or [])
     if len(axes) != len(frf_files):
-        raise UsageError("--axis", f"one axis (X, Y or Z) per .frf file ({len(frf_files)})", f"{len(axes)} axes")
+        raise UsageError(axis_option, f"one axis (X, Y or Z) per .frf file ({len(frf_files)})", f"{len(axes)} axes")
     axis_of = dict(zip(frf_files, axes))
     tables = [read_frf(p, axis=axis_of.get(p)) for p in paths]
     return tables[0] if len(tables) == 1 else FRFTable.merge(tables)
@@ -148,19 +150,38 @@ def _cmd_predict(args) -> int:
 
 
 def _cmd_identify(args) -> int:
-    from oma.identify import identify
+    from oma.identify import ROBOT_BAND_HZ, identify
     from oma.modal_io import write_modal_model
     from oma.record_io import read_record
 
     records = [read_record(path) for path in args.records]
+    reference = _load_structure(args.reference, args.reference_axis, option="--reference",
+                                axis_option="--reference-axis") if args.reference else None
+    band = (float(args.band[0]), float(args.band[1])) if args.band else ROBOT_BAND_HZ
+    if not 0 <= band[0] < band[1]:
+        raise UsageError("--band", "0 <= LO < HI (Hz)", f"{band[0]:g} {band[1]:g}")
+    if reference is not None:
+        from oma.frf_table import FRFTable
+
+        if not hasattr(reference, "freq_hz"):  # a modal model as the reference: its FRF on 0.1 Hz lines
+            reference = FRFTable.from_model(reference, np.arange(max(band[0], 0.1), band[1] + 1e-9, 0.1))
+        f_ref = np.asarray(reference.freq_hz)
+        if not np.any((f_ref >= band[0]) & (f_ref <= band[1])):
+            raise UsageError("--band", f"a band with lines of the reference ({f_ref.min():g}-{f_ref.max():g} Hz)",
+                             f"{band[0]:g}-{band[1]:g} Hz")
     result = identify(records, method=args.method)
+    payload = result.to_dict()
+    if reference is not None:
+        from oma.frf_estimate import frf_agreement
+
+        agreement = frf_agreement(FRFTable.from_model(result.model, f_ref), reference, band)
+        payload["reference_agreement"] = {"band_hz": list(band), **agreement}
     if args.output:
         write_modal_model(result.model, args.output)
     if args.plot:
-        drawn = result.plot_frf()
+        drawn = result.plot_frf(reference)
         fig = drawn[0] if isinstance(drawn, tuple) else drawn
         _save_figure(fig, args.plot)
-    payload = result.to_dict()
     sufficient = np.asarray(result.excitation_sufficient, dtype=bool)
 
     def human(p):
@@ -169,6 +190,10 @@ def _cmd_identify(args) -> int:
         lines += [f"  {f:7.2f} Hz  zeta {100 * z:5.2f} %  k {k:.3g} N/m  direction {np.round(u, 3).tolist()}"
                   for f, z, k, u in zip(m.natural_frequency_hz, m.damping_ratio, m.stiffness_N_m, m.directions)]
         lines += [f"  warning: {w}" for w in result.warnings]
+        if "reference_agreement" in p:
+            ra = p["reference_agreement"]
+            lines.append(f"agreement with the reference, {ra['band_hz'][0]:g}-{ra['band_hz'][1]:g} Hz (relative "
+                         "2-norm error): " + ", ".join(f"{a} {100 * ra[a]:.1f} %" for a in "XYZ" if a in ra))
         if args.output:
             lines.append(f"model written to {args.output}")
         return "\n".join(lines)
@@ -316,6 +341,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="default: time-domain fit refining the H1 fit; h1: the paper's estimator + fit")
     p.add_argument("--plot", default=None, help="figure file of the identified FRF (.png, .pdf, .svg)")
     p.add_argument("--strict", action="store_true", help="exit 1 when the excitation is insufficient")
+    p.add_argument("--reference", nargs="+", default=None,
+                   help="a hammer-test FRF (.csv, .uff, .frf) or a modal model (.yaml) to compare with")
+    p.add_argument("--reference-axis", nargs="+", default=None, choices=["X", "Y", "Z"],
+                   help="the axis of each .frf reference file, in order")
+    p.add_argument("--band", nargs=2, type=float, default=None, metavar=("LO", "HI"),
+                   help="band of the comparison, Hz (default 5-40, the robot's structural modes)")
     _add_json(p)
     p.set_defaults(handler=_cmd_identify)
 

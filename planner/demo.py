@@ -94,7 +94,7 @@ def _step_records(example: Example, report: Report) -> None:
     report.summary["records"] = summary
 
 
-AGREEMENT_BAND_HZ = (5.0, 40.0)  # the band of the robot modes, where the FRF is compared with the hammer test
+from oma.identify import ROBOT_BAND_HZ as AGREEMENT_BAND_HZ  # noqa: E402 (the band of the robot modes)
 
 
 def _step_identify(example: Example, report: Report) -> None:
