@@ -32,7 +32,8 @@ Speed (measured in ``benchmarks/bench_lobes.py`` against the straightforward den
 * everything is vectorised over speeds: all speeds sharing a step count are searched together,
   one batched exponential, assembly and Arnoldi per round of the search;
 * the limit depth at each speed is found by a bracketing root search on ``log`` of the spectral
-  radius (bracketing by factors of 2 from a guess, then the Illinois variant of regula falsi),
+  radius (bracketing by factors of 2 from a guess, then the Illinois variant of regula falsi,
+  then a ladder of depths below the boundary probed for islands of instability),
   never a depth grid.
 
 Process damping: per unit height an engaged tooth adds the force ``-(C / V) (v . r) r`` on the
@@ -48,7 +49,7 @@ from __future__ import annotations
 
 import logging
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -304,6 +305,12 @@ def _classify(mu: complex) -> str:
     return "hopf"
 
 
+#: Depths probed below a boundary for instability islands: ``ISLAND_RUNGS`` rungs, each
+#: ``ISLAND_RATIO`` times the one above (down to 0.7^4 = 0.24 of the boundary). An island narrower
+#: than a factor 1 / 0.7 in depth can still be missed.
+ISLAND_RATIO, ISLAND_RUNGS = 0.7, 4
+
+
 @dataclass(frozen=True)
 class SpeedLimit:
     """Stability limit at one spindle speed (see :meth:`SDMProblem.limits`).
@@ -526,9 +533,12 @@ class SDMProblem:
         Speeds that share a step count are searched together. From the guess (default 1 mm) the
         depth is halved while unstable or doubled while stable until the boundary is bracketed,
         then the Illinois regula falsi on ``log(spectral radius)`` narrows the bracket to
-        ``depth_rtol`` (relative width). A band of instability narrower than a factor 2 below the
-        first stable depth found can be missed (a lower guess is safer). ``inf`` where the cut is
-        still stable at ``max_depth_m``.
+        ``depth_rtol`` (relative width). Below the boundary found, a ladder of depths (each
+        ``ISLAND_RATIO`` times the one above, ``ISLAND_RUNGS`` of them) is probed for islands of
+        instability (flip lenses at low immersion); the lowest unstable rung restarts the search
+        below it. An island narrower than a factor ``1 / ISLAND_RATIO`` in depth can still be
+        missed. ``inf`` where the cut is still stable at ``max_depth_m`` (and on the ladder below
+        the guess).
 
         Parameters
         ----------
@@ -557,6 +567,26 @@ class SDMProblem:
             res = self._search(rpm[sel], int(m), guess[sel], depth_rtol, max_depth_m, chatter_frequency)
             for i, r in zip(sel, res):
                 out[i] = r
+        # neighbours: the boundary is continuous in speed but for cusps and the edges of flip
+        # lenses, so a neighbour's (lower) limit is probed too; an island narrower than the
+        # ladder's rungs shows up there (measured: 1-DOF benchmark, a/D = 0.1, 7513 rpm)
+        order = np.argsort(rpm, kind="stable")
+        depth = np.array([out[i].depth_limit_m for i in order])
+        nb = np.minimum(np.r_[np.inf, depth[:-1]], np.r_[depth[1:], np.inf])
+        probe = (1.0 - depth_rtol) * nb
+        sus = np.flatnonzero(np.isfinite(nb) & (probe < depth))
+        for m in np.unique(m_all[order[sus]]) if sus.size else []:
+            rows = sus[m_all[order[sus]] == m]
+            idx = order[rows]
+            rho, _ = self._radii(rpm[idx], probe[rows], int(m))
+            redo = rho >= 1.0
+            for i in idx:
+                out[i] = replace(out[i], evaluations=out[i].evaluations + 1)
+            if redo.any():
+                res = self._search(rpm[idx[redo]], int(m), probe[rows][redo], depth_rtol, max_depth_m,
+                                   chatter_frequency)
+                for i, r in zip(idx[redo], res):
+                    out[i] = replace(r, evaluations=r.evaluations + out[i].evaluations)
         return out
 
     def limit(self, spindle_rpm: float, steps: int, *, guess_m: float | None = None,
@@ -571,6 +601,7 @@ class SDMProblem:
         bsz = rpm.size
         a = np.where(np.isfinite(guess) & (guess > 0), guess, 1e-3)
         a = np.minimum(a, max_depth)
+        start = a.copy()
         lo, f_lo = np.zeros(bsz), np.full(bsz, np.nan)
         hi, f_hi = np.full(bsz, np.inf), np.full(bsz, np.nan)
         mu_hi = np.zeros(bsz, dtype=complex)
@@ -579,44 +610,76 @@ class SDMProblem:
 
         def evaluate(idx, depths):
             rho, mu = self._radii(rpm[idx], depths, m)
-            evals[idx] += 1
+            np.add.at(evals, idx, 1)
             return np.log(rho), mu
 
-        # ---- bracket: double while stable, halve while unstable
-        todo = np.arange(bsz)
-        while todo.size:
-            f, mu = evaluate(todo, a[todo])
-            st = f < 0
-            lo[todo[st]], f_lo[todo[st]] = a[todo[st]], f[st]
-            un = ~st
-            hi[todo[un]], f_hi[todo[un]], mu_hi[todo[un]] = a[todo[un]], f[un], mu[un]
-            a[todo[st]] = np.minimum(2.0 * a[todo[st]], max_depth)
-            a[todo[un]] = a[todo[un]] / 2.0
-            top = st & (lo[todo] >= max_depth)
-            unbounded[todo[top]] = True
-            if np.any(un & (a[todo] < 1e-12)):
-                raise RuntimeError(f"unstable at vanishing depth at {rpm[todo[un][0]]:g} rpm "
-                                   "(an undamped or negatively damped structure?)")
-            todo = todo[~(np.isfinite(f_lo[todo]) & np.isfinite(f_hi[todo])) & ~top]
-        # ---- Illinois regula falsi on log(rho): f_lo < 0 <= f_hi
-        g_lo, g_hi = f_lo.copy(), f_hi.copy()
-        side = np.zeros(bsz, dtype=int)
-        for it in range(200):
-            act = np.flatnonzero(~unbounded & (hi - lo > rtol * hi))
-            if act.size == 0:
+        def bracket(todo):
+            """Double while stable, halve while unstable, from ``a``, until ``lo`` / ``hi`` bracket the boundary."""
+            while todo.size:
+                f, mu = evaluate(todo, a[todo])
+                st = f < 0
+                lo[todo[st]], f_lo[todo[st]] = a[todo[st]], f[st]
+                un = ~st
+                hi[todo[un]], f_hi[todo[un]], mu_hi[todo[un]] = a[todo[un]], f[un], mu[un]
+                a[todo[st]] = np.minimum(2.0 * a[todo[st]], max_depth)
+                a[todo[un]] = a[todo[un]] / 2.0
+                top = st & (lo[todo] >= max_depth)
+                unbounded[todo[top]] = True
+                if np.any(un & (a[todo] < 1e-12)):
+                    raise RuntimeError(f"unstable at vanishing depth at {rpm[todo[un][0]]:g} rpm "
+                                       "(an undamped or negatively damped structure?)")
+                todo = todo[~(np.isfinite(f_lo[todo]) & np.isfinite(f_hi[todo])) & ~top]
+
+        def refine():
+            """Illinois regula falsi on ``log(rho)`` (``f_lo < 0 <= f_hi``) to ``rtol``."""
+            g_lo, g_hi = f_lo.copy(), f_hi.copy()
+            side = np.zeros(bsz, dtype=int)
+            for it in range(200):
+                act = np.flatnonzero(~unbounded & (hi - lo > rtol * hi))
+                if act.size == 0:
+                    break
+                w = hi[act] - lo[act]
+                c = (lo[act] * g_hi[act] - hi[act] * g_lo[act]) / (g_hi[act] - g_lo[act])
+                c = np.clip(c, lo[act] + 1e-3 * w, hi[act] - 1e-3 * w)
+                if it >= 60:  # safeguard: plain bisection
+                    c = lo[act] + w / 2
+                f, mu = evaluate(act, c)
+                un = f >= 0
+                iu, is_ = act[un], act[~un]
+                g_lo[iu] = np.where(side[iu] == -1, g_lo[iu] / 2, g_lo[iu])
+                hi[iu], f_hi[iu], g_hi[iu], mu_hi[iu], side[iu] = c[un], f[un], f[un], mu[un], -1
+                g_hi[is_] = np.where(side[is_] == 1, g_hi[is_] / 2, g_hi[is_])
+                lo[is_], f_lo[is_], g_lo[is_], side[is_] = c[~un], f[~un], f[~un], 1
+
+        bracket(np.arange(bsz))
+        refine()
+        # ---- islands: at low immersion a flip lens can lie below a stable gap under the boundary
+        # found (measured on the 1-DOF benchmark at a/D = 0.05: unstable at 1.45-3.93 mm under a
+        # Hopf boundary at 4.95 mm). Probe a ladder of depths below it; the lowest unstable rung
+        # becomes the new upper end of the bracket, and the ladder is walked again below the new
+        # boundary (lenses can stack).
+        rungs = ISLAND_RATIO ** np.arange(1, ISLAND_RUNGS + 1)
+        check = np.arange(bsz)
+        for _ in range(4):
+            base = np.where(unbounded[check], np.minimum(start[check], max_depth), lo[check])
+            depths = np.outer(base, rungs).ravel()
+            f, mu = evaluate(np.repeat(check, rungs.size), depths)
+            un = (f >= 0).reshape(check.size, rungs.size)
+            rows = np.flatnonzero(un.any(axis=1))
+            if rows.size == 0:
                 break
-            w = hi[act] - lo[act]
-            c = (lo[act] * g_hi[act] - hi[act] * g_lo[act]) / (g_hi[act] - g_lo[act])
-            c = np.clip(c, lo[act] + 1e-3 * w, hi[act] - 1e-3 * w)
-            if it >= 60:  # safeguard: plain bisection
-                c = lo[act] + w / 2
-            f, mu = evaluate(act, c)
-            un = f >= 0
-            iu, is_ = act[un], act[~un]
-            g_lo[iu] = np.where(side[iu] == -1, g_lo[iu] / 2, g_lo[iu])
-            hi[iu], f_hi[iu], g_hi[iu], mu_hi[iu], side[iu] = c[un], f[un], f[un], mu[un], -1
-            g_hi[is_] = np.where(side[is_] == 1, g_hi[is_] / 2, g_hi[is_])
-            lo[is_], f_lo[is_], g_lo[is_], side[is_] = c[~un], f[~un], f[~un], 1
+            hit = check[rows]
+            k = rungs.size - 1 - np.argmax(un[rows, ::-1], axis=1)  # the lowest unstable rung
+            pos = rows * rungs.size + k
+            hi[hit], f_hi[hit], mu_hi[hit] = depths[pos], f[pos], mu[pos]
+            unbounded[hit] = False
+            below = k + 1 < rungs.size  # the rung below it was probed, and was stable
+            lo[hit], f_lo[hit] = 0.0, np.nan
+            lo[hit[below]], f_lo[hit[below]] = depths[pos[below] + 1], f[pos[below] + 1]
+            a[hit[~below]] = hi[hit[~below]] / 2.0
+            bracket(hit[~below])
+            refine()
+            check = hit
         with np.errstate(invalid="ignore", divide="ignore"):
             root = lo + (hi - lo) * f_lo / (f_lo - f_hi)
         root = np.where(np.isfinite(root), root, hi)

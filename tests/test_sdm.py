@@ -214,3 +214,22 @@ def test_residual_compliance_is_ignored_with_a_warning():
     model = BENCH.with_modes(residual_compliance_m_N=np.eye(3) * 1e-9)
     with pytest.warns(UserWarning, match="ignores the residual compliance"):
         SDMProblem(model, TOOL, bench_cut(1.0), COEF)
+
+
+@pytest.mark.parametrize("ratio, rpm", [(0.05, 10829.145728643216), (0.05, 18266.331658291456),
+                                        (0.1, 18065.32663316583)])
+def test_the_limit_is_below_a_flip_lens_under_a_stable_gap(ratio, rpm):
+    # 1-DOF benchmark at low immersion: at these speeds (lens edges of a 200-speed diagram over
+    # 5000-25000 rpm) a flip lens lies under a stable gap below the Hopf boundary, e.g. unstable at
+    # 1.45-3.93 mm, stable again to 4.95 mm at 10 829 rpm. A search bracketing from the ZOA guess
+    # found the Hopf boundary, 2-5x too high; the limit must be below every unstable depth of a
+    # fine scan (60 depths up to the reported limit) and the cut unstable just above it.
+    cut = bench_cut(ratio)
+    point = predict_point(BENCH, TOOL, cut, COEF, spindle_rpm=rpm, axial_depth_m=1e-4, method="sdm")
+    limit, steps = point.depth_limit_m, point.steps
+    prob = SDMProblem(BENCH, TOOL, cut, COEF)
+    depths = np.linspace(0.02, 0.995, 60) * limit
+    rho, _ = prob._radii(np.full(depths.size, rpm), depths, steps)
+    assert np.all(rho < 1.0), depths[rho >= 1.0]
+    assert prob.spectral_radius(rpm, 1.01 * limit, steps) > 1.0
+    assert point.kind == "flip"
