@@ -2,8 +2,8 @@
 
 The estimators solve many small problems; multi-threaded BLAS on them only adds overhead and, on a
 shared machine, contention (measured: a stabilisation diagram 10 s with competing OpenBLAS threads,
-0.5 s on one). :func:`single_threaded_blas` pins the OpenBLAS builds bundled with NumPy and SciPy
-to one thread for the duration of a call.
+0.5 s on one). :func:`single_threaded_blas` limits the BLAS libraries of NumPy and SciPy to one
+thread for the duration of a call (threadpoolctl).
 """
 
 from __future__ import annotations
@@ -16,52 +16,31 @@ import numpy as np
 __all__ = ["single_threaded_blas", "blas_single_threaded", "lstsq_normal"]
 
 
-def _openblas_thread_controls():
-    """(get, set) thread-count functions of the OpenBLAS builds bundled in NumPy and SciPy wheels."""
-    import ctypes
-    import glob
-    import os
+@functools.lru_cache(maxsize=1)
+def _controller():
+    """The thread-pool controller of the BLAS libraries loaded in this process (threadpoolctl).
 
-    import scipy
+    SciPy's LAPACK is loaded first: the controller sees only the libraries loaded when it is made.
+    """
+    import scipy.linalg  # noqa: F401 (loads SciPy's BLAS)
+    from threadpoolctl import ThreadpoolController
 
-    out = []
-    for package, pattern, suffix in ((np, "numpy.libs", "64_"), (scipy, "scipy.libs", "")):
-        root = os.path.join(os.path.dirname(os.path.dirname(package.__file__)), pattern)
-        for path in glob.glob(os.path.join(root, "libscipy_openblas*")):
-            try:
-                lib = ctypes.CDLL(path)  # the already-loaded library: same handle
-                get = getattr(lib, f"scipy_openblas_get_num_threads{suffix}")
-                set_ = getattr(lib, f"scipy_openblas_set_num_threads{suffix}")
-            except (OSError, AttributeError):
-                continue
-            get.restype = ctypes.c_int
-            set_.argtypes = [ctypes.c_int]
-            out.append((get, set_))
-    return out
+    return ThreadpoolController()
 
 
 @contextlib.contextmanager
 def single_threaded_blas():
-    """Run the enclosed code with the bundled OpenBLAS limited to one thread, then restore it.
+    """Run the enclosed code with the BLAS libraries limited to one thread, then restore them.
 
     The identification solves thousands of small least-squares problems (tens of columns). On a
     loaded machine OpenBLAS's worker threads spin-wait for cores and slow such products down by
     one to two orders of magnitude (measured here: a 1800 x 36 normal-equation product takes
-    70 ms threaded, 0.14 ms single-threaded). Nothing happens where the controls are not found
-    (other BLAS builds). Process-wide while it lasts: other threads' BLAS calls run single-threaded too.
+    70 ms threaded, 0.14 ms single-threaded). Any BLAS threadpoolctl knows (OpenBLAS, MKL, BLIS)
+    is limited. Process-wide while it lasts: other threads' BLAS calls run single-threaded too.
     """
-    controls = []
-    for get, set_ in _openblas_thread_controls():
-        try:
-            controls.append((set_, int(get())))
-            set_(1)
-        except Exception:  # noqa: BLE001 - a foreign library's call: never let it break the fit
-            continue
-    try:
+    with _controller().limit(limits=1, user_api="blas"):
         yield
-    finally:
-        for set_, old in controls:
-            set_(old)
+
 
 def blas_single_threaded(func):
     """Decorator: run ``func`` inside :func:`single_threaded_blas`."""
