@@ -382,7 +382,9 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     if tfit is not None:
         ferr = np.where(np.isfinite(ferr), tfit.fit_error, np.nan)
 
-    # detectability over the shortest record
+    # detectability over the longest record: the records are identified together, so the model is
+    # at least as well informed as by its best-excited record alone (several records of one pose
+    # are never less trustworthy than one of them)
     resolution = None
     for r, s in zip(records, signals):
         res = r.sensors.displacement_resolution_m if r.sensors is not None else None
@@ -390,20 +392,20 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         if res is not None:
             resolution = max(resolution or 0.0, float(res))
     measured_axes = [a for a in range(3) if est.table.measured[a, a]]
-    det = detectability(model, float(durations.min()), fs, resolution, noise_var, axes=measured_axes,
+    det = detectability(model, float(durations.max()), fs, resolution, noise_var, axes=measured_axes,
                         n_trials=n_trials, rng=rng)
     # the same criterion on the records themselves: the model's response to the measured
     # background force (harmonics, mean and trend removed; run in on the time-reversed force) must
     # also reach the resolution. A model fitted to an under-excited record is itself unreliable,
-    # so the simulated (Monte-Carlo) verdict alone could be fooled by it.
-    p2v_meas = np.full(3, np.inf)
+    # so the simulated (Monte-Carlo) verdict alone could be fooled by it. Best record, as above.
+    p2v_meas = np.zeros(3)
     for s, h in zip(signals, harmonics):
         ok = s.force_axes
         f_bg = np.zeros_like(s.force_N)
         hz = h.freq_hz if h is not None else np.zeros(0)
         f_bg[ok] = s.force_N[ok] - fit_harmonic_signal(s.force_N[ok], fs, hz)
         x = simulate_response(model, np.hstack([f_bg[:, ::-1], f_bg]), fs)[:, s.n_samples :]
-        p2v_meas = np.minimum(p2v_meas, np.ptp(x, axis=1))
+        p2v_meas = np.maximum(p2v_meas, np.ptp(x, axis=1))
     sufficient = np.array(det.sufficient)
     if resolution is not None:
         for a in measured_axes:
@@ -416,12 +418,13 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
             warnings.append(
                 f"{AXES[a]}: background force variance {noise_var[a]:.1f} N^2 is below the "
                 f"{det.min_variance_N2[a]:.1f} N^2 the displacement sensor can resolve in "
-                f"{durations.min():.2f} s: the {AXES[a]} modes are not reliably identified"
+                f"{durations.max():.2f} s: the {AXES[a]} modes are not reliably identified"
             )
         elif resolution is not None and p2v_meas[a] < resolution:
             warnings.append(
-                f"{AXES[a]}: the background force of the record moves the tool by only "
-                f"{1e6 * p2v_meas[a]:.1f} um peak to valley, below the {1e6 * resolution:.1f} um the "
+                f"{AXES[a]}: the background force moves the tool by only "
+                f"{1e6 * p2v_meas[a]:.1f} um peak to valley{' in the best-excited record' if len(records) > 1 else ''}, "
+                f"below the {1e6 * resolution:.1f} um the "
                 f"displacement sensor can resolve: the {AXES[a]} modes are not reliably identified"
             )
         if np.isfinite(ferr[a]) and ferr[a] > max_fit_error:
