@@ -43,6 +43,9 @@ class PreparedSignals:
     quantisation_step_m : float or None
         Grid step of the displacement samples when they are quantised (a tracker); ``None`` when
         the displacement was integrated or is not on a grid.
+    motion : ndarray, shape (3, n), or None
+        The measured velocity (m/s) or acceleration (m/s^2) itself when the record carried one
+        (``displacement_m`` is then its frequency-domain integral); None for displacement records.
     """
 
     force_N: np.ndarray
@@ -51,6 +54,7 @@ class PreparedSignals:
     start_s: float
     motion_quantity: str
     quantisation_step_m: float | None
+    motion: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -212,6 +216,7 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
         raise RecordError(record.path, _signals_field(record), "displacement, velocity or acceleration channels",
                           "none")
     step = None
+    measured = None
     if quantity == "displacement":
         steps = [_grid_step(row, step_hint) for row in motion if not np.all(np.isnan(row))]
         if steps and all(s is not None for s in steps):
@@ -221,7 +226,7 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
         ok = ~np.all(np.isnan(motion), axis=1)
         integrated = np.full_like(motion, np.nan)
         integrated[ok] = integrate_frequency_domain(motion[ok], fs, order=order, highpass_hz=highpass_hz)
-        motion = integrated
+        measured, motion = motion, integrated
     return PreparedSignals(
         force_N=force,
         displacement_m=motion,
@@ -229,4 +234,5 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
         start_s=sl.start / fs,
         motion_quantity=quantity,
         quantisation_step_m=step,
+        motion=measured,
     )

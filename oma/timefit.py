@@ -109,6 +109,20 @@ class TimeFit:
             object.__setattr__(self, name, _ro(getattr(self, name)))
 
 
+def modal_response(p, f0, z0, fs, derivative=0):
+    """Response of a unit-mass mode to sampled forces ``p`` (rows), first-order hold.
+
+    ``derivative`` 0, 1, 2: displacement, velocity, acceleration. The acceleration follows from the
+    equation of motion, ``q'' = p - 2 zeta w q' - w^2 q``, exact like the other two.
+    """
+    if derivative < 2:
+        return sps.lfilter(*mode_filter(f0, z0, fs, derivative=derivative), p, axis=-1)
+    w = 2.0 * np.pi * f0
+    q = sps.lfilter(*mode_filter(f0, z0, fs), p, axis=-1)
+    qd = sps.lfilter(*mode_filter(f0, z0, fs, derivative=1), p, axis=-1)
+    return p - 2.0 * z0 * w * qd - w * w * q
+
+
 class _Problem:
     """The stacked variable-projection problem over records and outputs."""
 
@@ -118,6 +132,7 @@ class _Problem:
         self.fs = records[0]["fs"]
         self.n_in = records[0]["p"].shape[0]
         self.outputs = records[0]["outputs"]
+        self.derivative = records[0]["derivative"]  # output: displacement (0), velocity (1), acceleration (2)
         # residuals in units of each output's rms (keeps the optimiser's tolerances meaningful)
         ms = np.array([np.mean(np.concatenate([r["y_proj"][k] for r in records]) ** 2)
                        for k in range(len(self.outputs))])
@@ -126,8 +141,7 @@ class _Problem:
     def mode_columns(self, rec, f0, z0):
         """Columns of one mode: its forced responses ``(n, n_in)`` and free responses ``(n, 2)``."""
         p, t = rec["p"], rec["t"]
-        b, a = mode_filter(f0, z0, self.fs)
-        forced = sps.lfilter(b, a, p, axis=-1).T
+        forced = modal_response(p, f0, z0, self.fs, self.derivative).T
         w = 2 * np.pi * f0
         wd = w * np.sqrt(max(1 - z0 * z0, 1e-12))
         env = np.exp(-z0 * w * t)
@@ -138,8 +152,7 @@ class _Problem:
         p, t = rec["p"], rec["t"]
         shared = []
         for f0, z0 in zip(fn, zeta):
-            b, a = mode_filter(f0, z0, self.fs)
-            shared.append(sps.lfilter(b, a, p, axis=-1))  # (n_in, n)
+            shared.append(modal_response(p, f0, z0, self.fs, self.derivative))  # (n_in, n)
         shared = np.concatenate(shared, axis=0) if shared else np.zeros((0, t.size))
         if self.residual:
             shared = np.concatenate([shared, p], axis=0)
@@ -353,7 +366,9 @@ def _directional_proposals(prob, pred, grid, zeta0):
     return out
 
 
-def _prepare(signals, harmonics, inputs, outputs):
+def _prepare(signals, harmonics, inputs, outputs, derivative=0):
+    """Per record: background force ``p``, output ``y`` (the measured quantity of order
+    ``derivative``), the nuisance basis (trend and harmonics) and its orthonormal basis."""
     recs = []
     for s, h in zip(signals, harmonics):
         fs = s.sample_rate_hz
@@ -364,9 +379,10 @@ def _prepare(signals, harmonics, inputs, outputs):
         p = f - fit_harmonic_signal(f, fs, hz, trend=True)
         nuis = harmonic_basis(t, hz, trend=True)
         q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
-        y = np.array(s.displacement_m[outputs])
-        recs.append({"p": p, "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t, "nuis": nuis, "q_nuis": q_nuis, "fs": fs,
-                     "outputs": list(outputs), "inputs": list(inputs), "step": s.quantisation_step_m})
+        y = np.array(s.motion[outputs] if derivative else s.displacement_m[outputs])
+        recs.append({"p": p, "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t, "nuis": nuis, "q_nuis": q_nuis,
+                     "fs": fs, "outputs": list(outputs), "inputs": list(inputs), "step": s.quantisation_step_m,
+                     "derivative": derivative})
     return recs
 
 
@@ -467,7 +483,13 @@ def fit_time_domain(
     outputs = np.flatnonzero(np.logical_and.reduce([s.displacement_axes for s in sigs]))
     if inputs.size == 0 or outputs.size == 0:
         raise ValueError("the records share no recorded force axis or no recorded displacement axis")
-    recs = _prepare(sigs, harm, inputs, outputs)
+    # velocity or acceleration records are fitted as measured (the model's derivative), not through
+    # their frequency-domain integral, whose edge and low-frequency errors the fit would take for
+    # dynamics; records of mixed kinds are fitted as displacement
+    kinds = {s.motion_quantity if s.motion is not None else "displacement" for s in sigs}
+    derivative = {"velocity": 1, "acceleration": 2}.get(kinds.pop(), 0) if len(kinds) == 1 else 0
+    residual = residual and derivative == 0  # a residual compliance's derivative needs dp/dt: not fitted
+    recs = _prepare(sigs, harm, inputs, outputs, derivative)
     noise = np.broadcast_to(np.asarray(force_noise_variance_N2 if force_noise_variance_N2 is not None else 0.0,
                                        dtype=float), (len(recs),))
     for rec, v in zip(recs, noise):

@@ -8,6 +8,7 @@ from scipy import signal as sps
 
 from oma.identify import identify
 from oma.quantised import input_noise_scale
+from oma.timefit import modal_response
 from oma.signals import prepare_record
 from oma.synthetic import mode_filter, paper_like_model, synthetic_record
 
@@ -68,3 +69,32 @@ def test_an_output_crossing_one_rounding_boundary_keeps_its_stiffness():
     z = int(np.argmax(idn.model.directions[:, 2] ** 2 / (idn.model.stiffness_N_m * idn.model.damping_ratio)))
     assert idn.model.stiffness_N_m[z] == pytest.approx(TRUTH.stiffness_N_m[2], rel=0.10)  # issue 3's 20 s target
     assert idn.trusted
+
+
+@pytest.mark.parametrize("output", ["acceleration", "velocity"])
+def test_accelerometer_and_velocity_records_are_fitted_as_measured(output):
+    # the time-domain fit models the measured derivative itself (q' or q'' = p - 2 zeta w q' - w^2 q)
+    # instead of the frequency-domain integral, whose edge and low-frequency errors it took for
+    # dynamics (measured before: X stiffness -31 % from a 20 s acceleration record); issue 3's 20 s
+    # targets on every axis' dominant mode
+    rec = synthetic_record(duration_s=20.0, rng=5, output=output)
+    assert prepare_record(rec).motion is not None
+    m = identify([rec]).model
+    for a in range(3):
+        j = int(np.argmax(m.directions[:, a] ** 2 / (m.stiffness_N_m * m.damping_ratio)))
+        assert m.natural_frequency_hz[j] == pytest.approx(TRUTH.natural_frequency_hz[a], rel=0.01)
+        assert m.damping_ratio[j] == pytest.approx(TRUTH.damping_ratio[a], rel=0.15)
+        assert m.stiffness_N_m[j] == pytest.approx(TRUTH.stiffness_N_m[a], rel=0.10)
+
+
+def test_modal_response_derivatives_are_consistent():
+    # the three outputs of one mode to the same force: velocity = d/dt displacement and
+    # acceleration = d/dt velocity (central differences, to the step's second order)
+    fs, f0, z0 = 2000.0, 12.0, 0.04
+    p = np.random.default_rng(1).standard_normal((1, 4000))
+    p = sps.lfilter(*sps.butter(4, 20.0, fs=fs), p, axis=-1)  # smooth input: differences are accurate
+    x, v, acc = (modal_response(p, f0, z0, fs, d)[0] for d in (0, 1, 2))
+    dv = np.gradient(x, 1 / fs)[10:-10]
+    da = np.gradient(v, 1 / fs)[10:-10]
+    np.testing.assert_allclose(dv, v[10:-10], atol=2e-3 * np.abs(v).max())
+    np.testing.assert_allclose(da, acc[10:-10], atol=2e-3 * np.abs(acc).max())
