@@ -118,6 +118,8 @@ class Identification:
     min_noise_variance_N2 : ndarray, shape (3,)
         Smallest background variance the displacement sensor can resolve through the model, N^2.
     excitation_sufficient : ndarray of bool, shape (3,)
+        Per axis, whether the background force moves the tool enough for the displacement sensor
+        (False for an axis without recorded motion).
     trusted : bool
         Every measured axis sufficiently excited, the fit converged and its errors are acceptable.
     harmonics : tuple of Harmonics
@@ -407,6 +409,11 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         x = simulate_response(model, np.hstack([f_bg[:, ::-1], f_bg]), fs)[:, s.n_samples :]
         p2v_meas = np.maximum(p2v_meas, np.ptp(x, axis=1))
     sufficient = np.array(det.sufficient)
+    for a in range(3):
+        if a not in measured_axes:  # no motion recorded along it: nothing shows the excitation
+            sufficient[a] = False
+            warnings.append(f"{AXES[a]}: no tool-tip motion along {AXES[a]} in the records; "
+                            f"the model says nothing reliable along {AXES[a]}")
     if resolution is not None:
         for a in measured_axes:
             if p2v_meas[a] < resolution:

@@ -142,3 +142,12 @@ def test_input_errors():
     other = replace(rec, sample_rate_hz=500.0)
     with pytest.raises(RecordError, match="sample_rate_hz"):
         identify([rec, other])
+
+
+def test_an_axis_without_motion_is_not_called_sufficiently_excited():
+    rec = synthetic_record(duration_s=1.1, rng=10_003)
+    keep = [i for i, c in enumerate(rec.channels) if not (c.quantity == "displacement" and c.axis == "Z")]
+    idn = identify([replace(rec, channels=tuple(rec.channels[i] for i in keep), data=rec.data[keep])])
+    assert idn.to_dict()["excitation_sufficient"]["Z"] is False
+    assert any(w.startswith("Z: no tool-tip motion") for w in idn.warnings)
+    assert idn.frf_fit_error[2] != idn.frf_fit_error[2]  # NaN: not measured
