@@ -8,7 +8,7 @@ Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
 3. FRF: multiple-input H1 from pooled Welch spectra of all records, harmonic lines left out, with
    coherence and random-error bands (:mod:`oma.frf_estimate`).
 4. Modal fit of the H1 FRF: stabilisation diagram (:mod:`oma.lscf`), nonlinear least squares, BIC
-   (:mod:`oma.fit`).
+   (:mod:`oma.fit`, :mod:`oma.modal_fit`).
    With ``method='h1'`` this is the answer (the paper's estimator plus a fit).
 5. ``method='default'``: time-domain fit of the modal model to the measured force and displacement,
    started from step 4, with the exact likelihood of a quantised (tracker) displacement
@@ -29,7 +29,8 @@ from ._arrays import readonly as _ro
 from .detectability import Detectability, detectability
 from .errors import RecordError
 from ._linalg import single_threaded_blas
-from .fit import ModalFit, fit_modal_model, relative_fit_error
+from .fit import relative_fit_error
+from .modal_fit import ModalFit, fit_modal_model
 from .frf_estimate import FRFEstimate, estimate_frf, frf_agreement
 from .frf_table import FRFTable
 from .harmonics import BackgroundEstimate, Harmonics, background_variance, find_harmonics, fit_harmonic_signal

@@ -52,7 +52,7 @@ from scipy import optimize
 from scipy import signal as sps
 
 from ._linalg import blas_single_threaded, lstsq_normal
-from .fit import _residue_modes
+from .modal_fit import _residue_modes
 from .harmonics import Harmonics, fit_harmonic_signal, harmonic_basis
 from .modal import ModalModel
 from .quantised import MIN_DAMPING, free_residue_ml, modal_form_ml
@@ -301,7 +301,7 @@ def _rank_one_start(prob, fn, zeta):
     """Modes (fn, zeta, phi) for :func:`oma.quantised.modal_form_ml` from a least-squares fit with free residues.
 
     Each pole's symmetric residue is split into its significant rank-one parts
-    (:func:`oma.fit._residue_modes`); the parts of a rank-two residue of a pole with no other pole
+    (:func:`oma.modal_fit._residue_modes`); the parts of a rank-two residue of a pole with no other pole
     within 10 % start 1.5 % apart in frequency (two close modes the least squares merged).
     """
     _, coefs, _ = prob.solve(fn, zeta, full=True)

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from oma.fit import _effective_fraction, fit_modal_model, fit_poles_residues, modal_phase_collinearity, prune_modes
+from oma.fit import _effective_fraction, fit_poles_residues, modal_phase_collinearity, prune_modes
+from oma.modal_fit import fit_modal_model
 from oma.lscf import lscf_poles, stabilisation_diagram
 from oma.frf_table import FRFTable
 from oma.modal import ModalModel
