@@ -32,8 +32,11 @@ every time-varying quantity of this package is built from the one engaged-integr
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
+from oma._arrays import readonly
 from oma.cutting import CuttingCoefficients, Cut, Tool, engagement_angles
 
 __all__ = [
@@ -56,11 +59,9 @@ __all__ = [
 TWO_PI = 2.0 * np.pi
 
 
-def _readonly(a, dtype=None) -> np.ndarray:
-    """A read-only copy (the arrays of this package's frozen results)."""
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
+#: A read-only copy that keeps its dtype (complex harmonics and eigenvalues, integer lobe numbers,
+#: bool masks): the arrays of this package's frozen results.
+_readonly = partial(readonly, dtype=None)
 
 
 # Basis of the integrands, in this order: 1, sin, cos, sin^2, cos^2, sin*cos.

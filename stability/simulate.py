@@ -55,6 +55,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from oma._arrays import readonly
 from oma.cutting import Cut, CuttingCoefficients, Material, Sensors, Tool, engagement_angles
 from oma.errors import InputError
 from oma.modal import ModalModel
@@ -349,12 +350,6 @@ class SensorModel:
 
 
 # ------------------------------------------------------------------------------------- result
-def _readonly(a) -> np.ndarray:
-    a = np.ascontiguousarray(a, dtype=float)
-    a.setflags(write=False)
-    return a
-
-
 @dataclass(frozen=True)
 class SimulationResult:
     """Signals of one simulated cut.
@@ -405,7 +400,7 @@ class SimulationResult:
     def __post_init__(self):
         for name in ("time_s", "force_N", "displacement_m", "record_time_s", "measured_force_N",
                      "measured_displacement_m"):
-            object.__setattr__(self, name, _readonly(getattr(self, name)))
+            object.__setattr__(self, name, readonly(getattr(self, name)))
 
     # ------------------------------------------------------------------------- derived numbers
     @property

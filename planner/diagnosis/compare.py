@@ -113,12 +113,6 @@ N_OFFSETS = 6
 STABILITY_SEGMENT_FRACTION = 0.25
 
 
-def _ro(a, dtype=None):
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
-
-
 # ------------------------------------------------------------------------------------------ views
 @dataclass(frozen=True)
 class RecordView:
