@@ -83,6 +83,7 @@ from stability.oriented import helix_lag_per_m, torque_coefficients
 from stability import zoa_batch as _zoa_batch
 from stability.setup import Limits
 
+from .poses import model_list
 from .toolpath import Toolpath
 
 __all__ = ["ToolpathCheck", "check_toolpath", "VIOLATION_KINDS", "METHODS"]
@@ -647,12 +648,7 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, found {method!r}")
-    models = list(models)
-    if not models:
-        raise ValueError("models: expected at least one modal model, found none")
-    for i, m in enumerate(models):
-        if not isinstance(m, ModalModel):
-            raise TypeError(f"models[{i}] is a {type(m).__name__}, not a ModalModel")
+    models = model_list(models)
     coefficients = toolpath.material.cutting_coefficients
     if coefficients is None:
         raise ValueError("toolpath.material has no cutting coefficients: the forces cannot be predicted")

@@ -79,6 +79,7 @@ from oma.modal import ModalModel
 
 __all__ = [
     "PoseModels",
+    "model_list",
     "PoseEvaluation",
     "LOOResult",
     "PoseOutOfSpanError",
@@ -428,6 +429,17 @@ class LOOResult:
 
 
 # =========================================================================== the model
+def model_list(models) -> list[ModalModel]:
+    """``models`` as a list, checked: at least one, every one a :class:`~oma.modal.ModalModel`."""
+    models = list(models)
+    if not models:
+        raise ValueError("models: expected at least one modal model, found none")
+    for i, m in enumerate(models):
+        if not isinstance(m, ModalModel):
+            raise TypeError(f"models[{i}] is a {type(m).__name__}, not a ModalModel")
+    return models
+
+
 @dataclass(frozen=True, eq=False)
 class PoseModels:
     """Modal models at identified poses, matched mode by mode, interpolable in joint space.
@@ -587,12 +599,8 @@ class PoseModels:
         UserWarning
             Modes not matched at every pose; they are left out of the interpolation.
         """
-        models = list(models)
-        if not models:
-            raise ValueError("models: expected at least one modal model, found none")
+        models = model_list(models)
         for i, model in enumerate(models):
-            if not isinstance(model, ModalModel):
-                raise TypeError(f"models[{i}] is a {type(model).__name__}, not a ModalModel")
             if model.joints_deg is None:
                 raise ModelError(None, f"models[{i}].pose.joints_deg", "the robot pose (joint angles, deg)",
                                  "none")
