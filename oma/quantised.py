@@ -313,14 +313,13 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
     own_s = own / own_scale
     x_modal = predict(forced, np.zeros_like(own_s), phi, np.zeros((n_out, own_s.shape[1])))[0]
     beta = lstsq_normal(own_s, (y - x_modal).T).T
-    grid_floor = np.log(0.01 * q.min())
+    lsig, grid_floor = _error_scale(y - predict(forced, own_s, phi, beta)[0], q)
 
     def scale_floor(th_, phi_):
         """Log error-scale floor per output at these parameters (see :func:`_error_scale`)."""
         s_in = input_noise_scale(prob, np.exp(th_[:n_m]), np.exp(th_[n_m:]), phi_)
         return grid_floor if s_in is None else np.maximum(grid_floor, np.log(np.maximum(s_in, 1e-300)))
 
-    lsig, _ = _error_scale(y - predict(forced, own_s, phi, beta)[0], q)
     lsig = np.maximum(lsig, scale_floor(th, phi))
 
     def total(forced_, own_s_, phi_, beta_, lsig_):
