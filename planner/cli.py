@@ -8,107 +8,24 @@ Exit codes: 0 done; 1 done with a negative answer; 2 bad input (one line on stde
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
 import logging
 import sys
 import warnings
+from collections.abc import Sequence
 from dataclasses import replace
-from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from oma.errors import InputError
-from planner.report import jsonable
+from planner.cli_common import (EXIT_INPUT, EXIT_INTERNAL, EXIT_NEGATIVE, EXIT_OK, Parser, UsageError,
+                                add_json, coefficients, emit, load_structure, rpm_range, save_figure)
 
-__all__ = ["main", "UsageError"]
-
-EXIT_OK, EXIT_NEGATIVE, EXIT_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
-
-
-class UsageError(InputError):
-    """A command-line argument that does not make sense (exit code 2)."""
-
-    def __init__(self, option: str, expected: str, found: str):
-        super().__init__(None, option, expected, found)
-
-    def __str__(self) -> str:
-        return f"{self.field}: expected {self.expected}, found {self.found}"
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports usage errors in one line and exit code 2, without printing usage."""
-
-    def error(self, message):  # noqa: D401 - argparse API
-        self.exit(EXIT_INPUT, f"robomill: {message} (see 'robomill --help')\n")
-
-
-def _emit(args, payload: dict, human: Callable[[dict], str] | str) -> None:
-    """Print the JSON object (``--json``) or the human summary (stdout)."""
-    if args.json:
-        sys.stdout.write(json.dumps(jsonable(payload), indent=None) + "\n")
-    else:
-        text = human(payload) if callable(human) else human
-        sys.stdout.write(text.rstrip("\n") + "\n")
-
+__all__ = ["main", "UsageError", "build_parser"]
 
 # --------------------------------------------------------------------------------------- handlers
 # Each handler returns an exit code. Library imports happen inside, so `robomill --help` is fast.
-
-
-def _load_structure(paths: Sequence[str], axes: Sequence[str] | None = None, *, option: str = "--model",
-                    axis_option: str = "--axis"):
-    """A modal model (one ``.yaml``) or measured FRFs (``.csv``, ``.uff``, ``.frf``; several files
-    are merged into one table, e.g. an XX and a YY ``.frf``, whose axes ``axis_option`` gives in
-    order). ``option`` names the argument in error messages."""
-    from oma.frf_io import read_frf
-    from oma.frf_table import FRFTable
-    from oma.modal_io import read_modal_model
-
-    suffixes = [Path(p).suffix.lower() for p in paths]
-    if any(s in (".yaml", ".yml") for s in suffixes):
-        if len(paths) != 1:
-            raise UsageError(option, "one modal model (.yaml), or FRF files only", f"{len(paths)} files")
-        return read_modal_model(paths[0])
-    for path, suffix in zip(paths, suffixes):
-        if suffix not in (".csv", ".uff", ".unv", ".frf"):
-            raise UsageError(option, "a modal model (.yaml) or FRF files (.csv, .uff, .frf)", repr(path))
-    frf_files = [p for p, s in zip(paths, suffixes) if s == ".frf"]
-    axes = list(axes or [])
-    if len(axes) != len(frf_files):
-        raise UsageError(axis_option, f"one axis (X, Y or Z) per .frf file ({len(frf_files)})", f"{len(axes)} axes")
-    axis_of = dict(zip(frf_files, axes))
-    tables = [read_frf(p, axis=axis_of.get(p)) for p in paths]
-    return tables[0] if len(tables) == 1 else FRFTable.merge(tables)
-
-
-def _rpm_range(args, setup) -> tuple[float, float]:
-    if args.rpm is not None:
-        lo, hi = args.rpm
-    elif setup.limits.spindle_rpm is not None:
-        lo, hi = setup.limits.spindle_rpm
-    else:
-        raise UsageError("--rpm", "MIN MAX (the setup has no limits.spindle_rpm)", "nothing")
-    if not 0 < lo < hi:
-        raise UsageError("--rpm", "0 < MIN < MAX", f"{lo} {hi}")
-    return float(lo), float(hi)
-
-
-def _coefficients(setup, path):
-    if setup.material.cutting_coefficients is None:
-        raise InputError(path, "material.cutting_coefficients", "cutting coefficients", "none")
-    return setup.material.cutting_coefficients
-
-
-def _save_figure(fig, path: str) -> None:
-    """Save a figure atomically (format from the suffix)."""
-    import matplotlib.pyplot as plt
-
-    from oma.io import atomic_write
-
-    with atomic_write(path) as tmp:
-        fig.savefig(tmp, dpi=120, bbox_inches="tight", format=Path(path).suffix.lstrip(".") or "png")
-    plt.close(fig)
 
 
 def _cmd_lobes(args) -> int:
@@ -116,14 +33,14 @@ def _cmd_lobes(args) -> int:
     from stability.setup_io import read_setup
 
     setup = read_setup(args.setup)
-    structure = _load_structure(args.model, args.axis)
-    diagram = lobe_diagram(structure, setup.tool, setup.cut, _coefficients(setup, args.setup),
-                           rpm_range=_rpm_range(args, setup), method=args.method, n_rpm=args.n_rpm)
+    structure = load_structure(args.model, args.axis)
+    diagram = lobe_diagram(structure, setup.tool, setup.cut, coefficients(setup, args.setup),
+                           rpm_range=rpm_range(args, setup), method=args.method, n_rpm=args.n_rpm)
     if args.output:
         fig, _ = diagram.plot()
-        _save_figure(fig, args.output)
+        save_figure(fig, args.output)
     payload = diagram.to_dict()
-    _emit(args, payload, lambda p: (
+    emit(args, payload, lambda p: (
         f"{p['method']} lobes, {len(p['rpm'])} speeds; smallest limit depth "
         f"{1e3 * diagram.min_depth_limit_m:.3f} mm" + (f"; figure: {args.output}" if args.output else "")))
     return EXIT_OK
@@ -134,14 +51,14 @@ def _cmd_predict(args) -> int:
     from stability.setup_io import read_setup
 
     setup = read_setup(args.setup)
-    structure = _load_structure(args.model, args.axis)
+    structure = load_structure(args.model, args.axis)
     for option, value in (("--rpm", args.rpm), ("--depth", args.depth)):
         if not value > 0:
             raise UsageError(option, "a positive number", repr(value))
-    point = predict_point(structure, setup.tool, setup.cut, _coefficients(setup, args.setup),
+    point = predict_point(structure, setup.tool, setup.cut, coefficients(setup, args.setup),
                           spindle_rpm=args.rpm, axial_depth_m=args.depth, method=args.method)
     payload = point.to_dict()
-    _emit(args, payload, lambda p: "\n".join([
+    emit(args, payload, lambda p: "\n".join([
         f"{'stable' if p['stable'] else 'CHATTER'} at {args.rpm:.0f} rpm, depth {1e3 * args.depth:.3f} mm "
         f"(limit {1e3 * point.depth_limit_m:.3f} mm, {args.method})",
         f"surface location error {1e6 * point.surface_location_error_m:+.1f} um, peak force "
@@ -155,7 +72,7 @@ def _cmd_identify(args) -> int:
     from oma.record_io import read_record
 
     records = [read_record(path) for path in args.records]
-    reference = _load_structure(args.reference, args.reference_axis, option="--reference",
+    reference = load_structure(args.reference, args.reference_axis, option="--reference",
                                 axis_option="--reference-axis") if args.reference else None
     band = (float(args.band[0]), float(args.band[1])) if args.band else ROBOT_BAND_HZ
     if not 0 <= band[0] < band[1]:
@@ -181,7 +98,7 @@ def _cmd_identify(args) -> int:
     if args.plot:
         drawn = result.plot_frf(reference)
         fig = drawn[0] if isinstance(drawn, tuple) else drawn
-        _save_figure(fig, args.plot)
+        save_figure(fig, args.plot)
     sufficient = np.asarray(result.excitation_sufficient, dtype=bool)
 
     def human(p):
@@ -198,7 +115,7 @@ def _cmd_identify(args) -> int:
             lines.append(f"model written to {args.output}")
         return "\n".join(lines)
 
-    _emit(args, payload, human)
+    emit(args, payload, human)
     return EXIT_NEGATIVE if (args.strict and not sufficient.all()) else EXIT_OK
 
 
@@ -212,7 +129,7 @@ def _cmd_check(args) -> int:
     result = check_toolpath(toolpath, models, method=args.method, progress=not args.json)
     if args.output:
         fig, _ = result.plot()
-        _save_figure(fig, args.output)
+        save_figure(fig, args.output)
     payload = result.to_dict()
 
     def human(p):
@@ -224,7 +141,7 @@ def _cmd_check(args) -> int:
             lines.append(f"figure: {args.output}")
         return "\n".join(lines)
 
-    _emit(args, payload, human)
+    emit(args, payload, human)
     return EXIT_OK if result.ok else EXIT_NEGATIVE
 
 
@@ -238,7 +155,7 @@ def _cmd_plan(args) -> int:
     result = plan(setup, model, method=args.method)
     if args.output:
         fig, _ = result.plot()
-        _save_figure(fig, args.output)
+        save_figure(fig, args.output)
     payload = result.to_dict()
 
     def human(p):
@@ -248,7 +165,7 @@ def _cmd_plan(args) -> int:
                 f"{1e3 * p['feed_per_tooth_m']:.3f} mm/tooth: MRR {1e6 * p['mrr_m3_s']:.2f} cm^3/s; active: "
                 + (", ".join(p["active_constraints"]) or "none"))
 
-    _emit(args, payload, human)
+    emit(args, payload, human)
     if result.success:
         return EXIT_OK
     return EXIT_NEGATIVE if result.status == "infeasible" else EXIT_INTERNAL
@@ -264,7 +181,7 @@ def _cmd_diagnose(args) -> int:
     result = diagnose(records, model)
     if args.output:
         drawn = result.plot()
-        _save_figure(drawn[0] if isinstance(drawn, tuple) else drawn, args.output)
+        save_figure(drawn[0] if isinstance(drawn, tuple) else drawn, args.output)
     payload = result.to_dict()
 
     def human(p):
@@ -273,7 +190,7 @@ def _cmd_diagnose(args) -> int:
                  "ranking: " + ", ".join(f"{r['cause']} {r['gain']:.2f}" for r in p["ranking"])]
         return "\n".join(lines)
 
-    _emit(args, payload, human)
+    emit(args, payload, human)
     return EXIT_OK
 
 
@@ -285,7 +202,7 @@ def _cmd_simulate(args) -> int:
 
     setup = read_setup(args.setup)
     model = read_modal_model(args.model)
-    coefficients = _coefficients(setup, args.setup)
+    cutting = coefficients(setup, args.setup)
     for option, value in (("--rpm", args.rpm), ("--depth", args.depth), ("--duration", args.duration),
                           ("--sample-rate", args.sample_rate)):
         if not value > 0:
@@ -301,7 +218,7 @@ def _cmd_simulate(args) -> int:
         displacement_resolution_m=args.displacement_resolution,
     )
     result = simulate(
-        model, setup.tool, cut, coefficients,
+        model, setup.tool, cut, cutting,
         duration_s=args.duration, sample_rate_hz=args.sample_rate, background=background,
         sensors=sensors, seed=args.seed, progress=not args.json,
     )
@@ -309,7 +226,7 @@ def _cmd_simulate(args) -> int:
                               joints_deg=model.joints_deg)
     write_record(record, args.output)
     payload = {"record": str(Path(args.output))}
-    _emit(args, payload, lambda p: f"record written to {p['record']}")
+    emit(args, payload, lambda p: f"record written to {p['record']}")
     return EXIT_OK
 
 
@@ -318,21 +235,21 @@ def _cmd_demo(args) -> int:
 
     kwargs = {} if args.example is None else {"example_dir": Path(args.example)}
     summary = run_demo(Path(args.output), progress=not args.json, **kwargs)
-    _emit(args, summary, lambda p: f"report: {p['report']}")
+    emit(args, summary, lambda p: f"report: {p['report']}")
     return EXIT_OK
 
 
 # ----------------------------------------------------------------------------------------- parser
 
-
-def _add_json(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+#: Command groups that live in their own sub-package; each module has ``add_parsers(sub)``, which
+#: adds its subcommands (with ``handler`` defaults) to the ``robomill`` subparsers.
+COMMAND_GROUPS: tuple[str, ...] = ()
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="robomill", description="Robotic milling: identify, predict, plan, check.")
+    parser = Parser(prog="robomill", description="Robotic milling: identify, predict, plan, check.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log diagnostics to stderr")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     p = sub.add_parser("identify", help="OMA: the tool-tip modal model from milling records of one pose")
     p.add_argument("records", nargs="+", help="record directories (or their record.yaml)")
@@ -347,7 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the axis of each .frf reference file, in order")
     p.add_argument("--band", nargs=2, type=float, default=None, metavar=("LO", "HI"),
                    help="band of the comparison, Hz (default 5-40, the robot's structural modes)")
-    _add_json(p)
+    add_json(p)
     p.set_defaults(handler=_cmd_identify)
 
     p = sub.add_parser("plan", help="recommended spindle speed, depth and feed")
@@ -356,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["auto", "zoa", "sdm"], default="auto",
                    help="stability limit: auto = SDM below ae/D 0.2 (flip lobes), else ZOA")
     p.add_argument("-o", "--output", default=None, help="figure of the lobes with the optimum")
-    _add_json(p)
+    add_json(p)
     p.set_defaults(handler=_cmd_plan)
 
     p = sub.add_parser("check", help="check a planned toolpath point by point")
@@ -364,14 +281,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--models", required=True, nargs="+", help="modal models at one or more robot poses")
     p.add_argument("--method", choices=["zoa", "sdm"], default="zoa")
     p.add_argument("-o", "--output", default=None, help="figure of the path coloured by stability margin")
-    _add_json(p)
+    add_json(p)
     p.set_defaults(handler=_cmd_check)
 
     p = sub.add_parser("diagnose", help="compare measurement with simulation, name the cause, measure the gain")
     p.add_argument("records", nargs="+")
     p.add_argument("--model", required=True)
     p.add_argument("-o", "--output", default=None, help="figure: residuals, FRF with/without the extension, evidence")
-    _add_json(p)
+    add_json(p)
     p.set_defaults(handler=_cmd_diagnose)
 
     p = sub.add_parser("simulate", help="time-domain simulation of a cut, written as a record")
@@ -389,7 +306,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force-noise-variance", type=float, default=0.56, help="force sensor noise, N^2 (default 0.56)")
     p.add_argument("--displacement-resolution", type=float, default=1.5e-5,
                    help="displacement sensor resolution, m (default 1.5e-5, a laser tracker)")
-    _add_json(p)
+    add_json(p)
     p.set_defaults(handler=_cmd_simulate)
 
     for name, help_text in (("lobes", "stability lobe diagram"), ("predict", "one operating point")):
@@ -410,13 +327,15 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--rpm", type=float, required=True)
             p.add_argument("--depth", type=float, required=True, help="axial depth of cut, m")
             p.set_defaults(handler=_cmd_predict)
-        _add_json(p)
+        add_json(p)
 
     p = sub.add_parser("demo", help="the whole job on the bundled example")
     p.add_argument("-o", "--output", default="out", help="output directory (default out/)")
     p.add_argument("--example", default=None, help="example cell directory (default: the bundled one)")
-    _add_json(p)
+    add_json(p)
     p.set_defaults(handler=_cmd_demo)
+    for module in COMMAND_GROUPS:
+        importlib.import_module(module).add_parsers(sub)
     return parser
 
 
