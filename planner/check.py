@@ -18,11 +18,13 @@ For every point of a :class:`~planner.toolpath.Toolpath` (``robomill check``, cl
    half to twice the planned speed), at which the planned depth passes that test.
 4. **forced vibration** of the stable cut (Schmitz & Mann, IJMTM 46, 2006; :mod:`stability.forced`):
    surface location error at the tool tip, largest resultant force in the cut plane, mean cutting
-   power; ``surface_error``, ``force`` and ``power`` violations against ``limits``. They are
+   power and mean cutting torque over a revolution; ``surface_error``, ``force``, ``power`` and
+   ``torque`` violations against ``limits`` (the torque and power limits bound the MEAN over a
+   revolution, formats.md; ``torque`` is robomill's extension of cli.md's kinds). They are
    evaluated at every point, also where the cut chatters (where they describe the forced part only).
 
-The spindle torque limit and the speed, depth and feed ranges of :class:`~stability.setup.Limits`
-are planning bounds, not violation kinds of cli.md; they are not checked here.
+The speed, depth and feed ranges of :class:`~stability.setup.Limits` are planning bounds, not
+violation kinds of cli.md; they are not checked here.
 
 How the work is shared (results are those of :func:`stability.lobes.predict_point` at each point)
 ----------------------------------------------------------------------------------------------
@@ -89,7 +91,7 @@ from .toolpath import Toolpath
 __all__ = ["ToolpathCheck", "check_toolpath", "VIOLATION_KINDS", "METHODS"]
 
 #: Violation kinds (cli.md), in the order they are listed for one point.
-VIOLATION_KINDS = ("chatter", "surface_error", "force", "power", "pose_out_of_range")
+VIOLATION_KINDS = ("chatter", "surface_error", "force", "power", "torque", "pose_out_of_range")
 METHODS = ("zoa", "sdm")
 
 _TWO_PI = 2.0 * math.pi
@@ -134,6 +136,8 @@ class ToolpathCheck:
         Largest resultant force in the cut plane over a revolution, N.
     power_W : ndarray, shape (n_points,)
         Mean cutting power, W.
+    mean_torque_N_m : ndarray, shape (n_points,)
+        Mean cutting torque over a revolution, N m (what ``limits.spindle_torque_N_m`` bounds).
     in_span : ndarray of bool, shape (n_points,)
         The pose lies in the span of the identified poses (always True with one model).
     nearest_stable_rpm : ndarray, shape (n_points,)
@@ -143,7 +147,7 @@ class ToolpathCheck:
         ``{index, kind, value, limit}`` (cli.md) in point order, kinds in :data:`VIOLATION_KINDS`
         order. ``chatter``: planned depth and allowed depth (margin x limit), m, plus
         ``depth_limit_m`` and ``nearest_stable_rpm``; ``surface_error``: ``|SLE|`` and the allowed
-        value, m; ``force``: N; ``power``: W; ``pose_out_of_range``: distance to the identified span
+        value, m; ``force``: N; ``power``: W; ``torque``: mean torque, N m; ``pose_out_of_range``: distance to the identified span
         and the tolerance exceeded (along the span or across it), degrees, plus ``beyond_range``.
     limits : Limits
         The limits checked against.
@@ -168,6 +172,7 @@ class ToolpathCheck:
     surface_location_error_m: np.ndarray
     peak_force_N: np.ndarray
     power_W: np.ndarray
+    mean_torque_N_m: np.ndarray
     in_span: np.ndarray
     nearest_stable_rpm: np.ndarray
     violations: tuple
@@ -219,7 +224,8 @@ class ToolpathCheck:
         }
         if per_point:
             for name in ("depth_limit_m", "stability_margin", "chatter_frequency_hz", "surface_location_error_m",
-                         "peak_force_N", "power_W", "nearest_stable_rpm", "spindle_rpm", "axial_depth_m"):
+                         "peak_force_N", "power_W", "mean_torque_N_m", "nearest_stable_rpm", "spindle_rpm",
+                         "axial_depth_m"):
                 out[name] = [_json_float(x) for x in getattr(self, name)]
             out["in_span"] = [bool(x) for x in self.in_span]
         return out
@@ -721,7 +727,8 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
                           depth[fg_first], rpm[fg_first], harm[fg_first],
                           np.where(down[fg_first], 1.0, -1.0))[fg_id]
     peak = shape_peak[shape_id]
-    power = shape_torque[shape_id] * _TWO_PI * rpm / 60.0
+    mean_torque = shape_torque[shape_id]
+    power = mean_torque * _TWO_PI * rpm / 60.0
 
     # ---- violations
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -734,6 +741,8 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
         found["force"] = peak > limits.max_force_N
     if limits.spindle_power_W is not None:
         found["power"] = power > limits.spindle_power_W
+    if limits.spindle_torque_N_m is not None:
+        found["torque"] = mean_torque > limits.spindle_torque_N_m
     found["pose_out_of_range"] = ~pm.in_span
     violations = []
     for i in np.flatnonzero(np.any(np.stack(list(found.values())), axis=0)):
@@ -751,6 +760,9 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
         if found["power"][i]:
             violations.append({"index": i, "kind": "power", "value": float(power[i]),
                                "limit": float(limits.spindle_power_W)})
+        if found["torque"][i]:
+            violations.append({"index": i, "kind": "torque", "value": float(mean_torque[i]),
+                               "limit": float(limits.spindle_torque_N_m)})
         if found["pose_out_of_range"][i]:
             violations.append({"index": i, "kind": "pose_out_of_range", "value": float(pm.distance_deg[i]),
                                "limit": float(pm.hull_tol_deg if pm.beyond[i] else pm.span_tol_deg),
@@ -759,12 +771,11 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
         notes.append(f"models evaluated at the poses rounded to {pose_resolution_deg:g} deg")
     if direction_resolution_deg > 0:
         notes.append(f"cut frames evaluated with directions rounded to {direction_resolution_deg:g} deg")
-    if limits.spindle_torque_N_m is not None:
-        notes.append("the spindle torque limit is not checked (not a violation kind of cli.md)")
     return ToolpathCheck(
         method=method, positions_m=_ro(toolpath.positions_m), spindle_rpm=_ro(rpm), axial_depth_m=_ro(depth),
         depth_limit_m=_ro(depth_limit), stability_margin=_ro(margin), chatter_frequency_hz=_ro(chatter_freq),
-        surface_location_error_m=_ro(sle), peak_force_N=_ro(peak), power_W=_ro(power), in_span=_ro(pm.in_span, bool),
+        surface_location_error_m=_ro(sle), peak_force_N=_ro(peak), power_W=_ro(power), mean_torque_N_m=_ro(mean_torque),
+        in_span=_ro(pm.in_span, bool),
         nearest_stable_rpm=_ro(nearest), violations=tuple(violations), limits=limits, allowed_fraction=fraction,
         evaluations=counts, notes=tuple(notes),
     )

@@ -1,4 +1,4 @@
-"""The process model of the planner: surface error, peak force and torque, power of one cut.
+"""The process model of the planner: surface error, peak force, mean torque and power of one cut.
 
 Analytic in the decision variables ``(n, ap, fz)`` so that the NLP of :mod:`planner.optimize` can
 use them (NumPy or CasADi). Surface location error (Schmitz & Mann, IJMTM 46, 2006), exact for a
@@ -43,7 +43,7 @@ def _window_harmonics(st: float, ex: float, teeth: int, n_harm: int) -> np.ndarr
 
 
 class CutModel:
-    """Surface error, peak force/torque and power of one cut as functions of ``(n, ap, fz)``."""
+    """Surface error, peak force, mean torque and power of one cut as functions of ``(n, ap, fz)``."""
 
     def __init__(self, model, tool, cut, coef):
         self.model, self.tool, self.cut, self.coef = model, tool, cut, coef
@@ -62,10 +62,16 @@ class CutModel:
         self._coeff_cache: dict[int, dict] = {}
         self._phi_grid = (TWO_PI / self.teeth) * np.arange(4096) / 4096
 
-    # ---- power (exact) ---------------------------------------------------------------------------
+    # ---- mean torque and power (exact) -----------------------------------------------------------
+    def mean_torque(self, ap, fz):
+        """Mean cutting torque over a revolution, N m (NumPy or CasADi): what a spindle's continuous
+        torque rating bounds (formats.md, limits). Linear in depth (every slice has the same mean)
+        and affine in feed; independent of speed."""
+        return ap * (self.tau_c * fz + self.tau_e)
+
     def power(self, rpm, ap, fz):
-        """Mean spindle power, W (NumPy or CasADi)."""
-        return TWO_PI * rpm / 60.0 * ap * (self.tau_c * fz + self.tau_e)
+        """Mean spindle power, W (NumPy or CasADi): the mean torque times the spindle's speed."""
+        return TWO_PI * rpm / 60.0 * self.mean_torque(ap, fz)
 
     # ---- surface location error (exact, analytic) ------------------------------------------------
     def _sle_coeffs(self, n_harm: int):
@@ -147,7 +153,8 @@ class CutModel:
     # ---- peak force and torque (speed-independent) ----------------------------------------------
     def peaks(self, ap: float, fz) -> tuple[np.ndarray, np.ndarray]:
         """Largest in-plane force (N) and torque (N m) over a tooth period, at one depth and feeds
-        ``fz`` (array): a fine angle grid plus both sides of every entry/exit angle."""
+        ``fz`` (array): a fine angle grid plus both sides of every entry/exit angle. The peak
+        torque is reported only; the spindle's torque limit bounds the mean (:meth:`mean_torque`)."""
         fz = np.atleast_1d(np.asarray(fz, dtype=float))
         pitch = TWO_PI / self.teeth
         lag = self.kappa * ap
@@ -163,8 +170,8 @@ class CutModel:
         return force, torque
 
     def depth_boundary(self, which: int, limit: float, feeds, ap_lo: float, ap_hi: float) -> np.ndarray:
-        """Largest depth (first crossing) with peak force (``which=0``) or torque (1) <= limit, per
-        feed; ``2 ap_hi`` where the limit is not reached below that."""
+        """Largest depth (first crossing) with peak force (``which=0``) or peak torque (1) <= limit,
+        per feed; ``2 ap_hi`` where the limit is not reached below that."""
         feeds = np.asarray(feeds, dtype=float)
         grid = np.geomspace(0.25 * ap_lo, 2.0 * ap_hi, 25)
         vals = np.array([self.peaks(a, feeds)[which] for a in grid])  # (n_ap, n_feed)

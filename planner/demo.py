@@ -236,7 +236,8 @@ def _step_plan(example: Example, report: Report) -> None:
              1e6 * (example.setup.limits.surface_location_error_m or float("nan"))],
             ["peak force N", point.peak_force_N, example.setup.limits.max_force_N],
             ["power W", point.power_W, example.setup.limits.spindle_power_W],
-            ["peak torque N m", point.peak_torque_N_m, example.setup.limits.spindle_torque_N_m]])
+            ["mean torque N m", point.mean_torque_N_m, example.setup.limits.spindle_torque_N_m],
+            ["peak torque N m (shown only; the limit bounds the mean)", point.peak_torque_N_m, float("nan")]])
     else:
         sec.text(f"<span class='warn'>No feasible plan ({result.status}): {result.message}</span>")
     fig, _ = result.plot()

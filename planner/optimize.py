@@ -5,8 +5,8 @@ The problem (robomill issue 5)::
     maximise    MRR = ap ae fz N n / 60                     over n (rpm), ap (m), fz (m)
     subject to  ap <= margin * a_lim(n)                      stability (ZOA or SDM limit)
                 |SLE(n, ap, fz)| <= tol                      surface location error
-                peak force (ap, fz) <= F_max,  peak torque (ap, fz) <= T_max
-                power = 2 pi n / 60 * ap * tau(fz) <= P_max
+                peak force (ap, fz) <= F_max
+                mean torque = ap tau(fz) <= T_max,  power = 2 pi n / 60 * ap * tau(fz) <= P_max
                 the bounds of the setup on n, ap and fz
 
 How each function enters the NLP (smooth inside one pocket):
@@ -32,11 +32,14 @@ How each function enters the NLP (smooth inside one pocket):
   (the harmonics of :func:`stability.forced.default_harmonics` at the pocket's lowest speed).
   It is not monotone in depth: with a helix the dynamic part cancels near multiples of the axial
   pitch, so ``|SLE| <= tol`` can hold in thin bands of depth only; the start grid looks for them.
-* **Peak force and torque** do not depend on speed: for every feed on a grid the largest depth
-  with the peak within the limit is found (bracketing on a depth grid, then regula falsi), and the
+* **Peak force** does not depend on speed: for every feed on a grid the largest depth with the
+  peak within the limit is found (bracketing on a depth grid, then regula falsi), and the
   constraint ``ap <= A(fz)`` uses a cubic B-spline of these depths (``ca.interpolant``).
-* **Power** is exact: the mean torque is linear in depth (every slice has the same mean) and affine
-  in feed, ``tau = ap (tau_c fz + tau_e)``.
+* **Torque and power** are exact. The limits bound the MEAN torque and power over a revolution
+  (formats.md: a spindle's continuous rating; its inertia smooths the fluctuation within a
+  revolution), and the mean torque is linear in depth (every slice has the same mean) and affine
+  in feed, ``tau = ap (tau_c fz + tau_e)``; power is ``2 pi n / 60`` times it. The peak torque
+  is reported by :func:`stability.lobes.predict_point` but constrains nothing.
 
 Every pocket is started from the best point of a grid evaluated with the same functions (a pocket
 can hold several local optima of the surface error) and solved by IPOPT (one ``ca.Opti`` per
@@ -100,7 +103,7 @@ class PlanSettings:
     seed_speeds, seed_depths, seed_feeds : int
         Start grid per pocket.
     force_feed_nodes : int
-        Feeds at which the depth boundary of peak force and torque is computed (>= 8).
+        Feeds at which the depth boundary of the peak force is computed (>= 8).
     recheck_rtol : float
         A re-checked value may exceed its limit by this fraction (rounding of the limit search).
     backoff_slack : float
@@ -324,7 +327,7 @@ _MAX_COEFFS = 129
 
 
 class _Problem:
-    """Everything the NLPs share: the cut model, the boundaries of force and torque, the limits."""
+    """Everything the NLPs share: the cut model, the peak-force boundary, the limits."""
 
     def __init__(self, setup, model, settings: PlanSettings):
         self.setup, self.settings = setup, settings
@@ -339,15 +342,13 @@ class _Problem:
                            else np.linspace(max(fz_lo - pad, 0.5 * fz_lo), fz_hi + pad, settings.force_feed_nodes))
         self._nlps: dict[int, _NLP] = {}
         self.boundary: dict[str, tuple[np.ndarray, ca.Function | None]] = {}
-        for name, which, limit in (("force", 0, self.b.force), ("torque", 1, self.b.torque)):
-            if limit is None:
-                continue
-            depth = self.cm.depth_boundary(which, float(limit), self.feed_nodes, *self.b.ap)
-            fn = None if self.fixed_feed else ca.interpolant(f"{name}_boundary", "bspline", [self.feed_nodes], depth)
-            self.boundary[name] = (depth, fn)
+        if self.b.force is not None:
+            depth = self.cm.depth_boundary(0, float(self.b.force), self.feed_nodes, *self.b.ap)
+            fn = None if self.fixed_feed else ca.interpolant("force_boundary", "bspline", [self.feed_nodes], depth)
+            self.boundary["force"] = (depth, fn)
 
     def boundary_depth(self, name, fz):
-        """Depth boundary of ``name`` ('force'/'torque') at feed ``fz`` (NumPy or CasADi)."""
+        """Depth boundary of ``name`` (the peak force, 'force') at feed ``fz`` (NumPy or CasADi)."""
         depth, fn = self.boundary[name]
         if fn is None:
             return float(depth[0]) + 0.0 * fz
@@ -365,9 +366,10 @@ class _Problem:
         if b.sle is not None:
             s_c, s_e = sle_parts if sle_parts is not None else self.cm.sle_parts(rpm, ap, n_harm)
             out["surface_error"] = np.abs(fz * s_c + s_e) <= factors["surface_error"] * b.sle
-        for name in ("force", "torque"):
-            if name in self.boundary:
-                out[name] = ap <= factors[name] * self.boundary_depth(name, fz)
+        if "force" in self.boundary:
+            out["force"] = ap <= factors["force"] * self.boundary_depth("force", fz)
+        if b.torque is not None:
+            out["torque"] = self.cm.mean_torque(ap, fz) <= factors["torque"] * b.torque
         if b.power is not None:
             out["power"] = self.cm.power(rpm, ap, fz) <= factors["power"] * b.power
         return out
@@ -459,9 +461,10 @@ class _Problem:
         if b.sle is not None:
             s_c, s_e = sle_fn(rpm, ap)
             opti.subject_to(opti.bounded(-1.0, (fz * s_c + s_e) / (factor["surface_error"] * b.sle), 1.0))
-        for name in ("force", "torque"):
-            if name in self.boundary:
-                opti.subject_to(xa <= factor[name] * self.boundary_depth(name, fz) / DEPTH_SCALE)
+        if "force" in self.boundary:
+            opti.subject_to(xa <= factor["force"] * self.boundary_depth("force", fz) / DEPTH_SCALE)
+        if b.torque is not None:
+            opti.subject_to(self.cm.mean_torque(ap, fz) / (factor["torque"] * b.torque) <= 1.0)
         if b.power is not None:
             opti.subject_to(self.cm.power(rpm, ap, fz) / (factor["power"] * b.power) <= 1.0)
         scale = (b.rpm[1] / RPM_SCALE) * (b.ap[1] / DEPTH_SCALE) * (b.fz[1] / FEED_SCALE)
@@ -523,7 +526,7 @@ class _Problem:
         if b.force is not None:
             out["force"] = point.peak_force_N / b.force
         if b.torque is not None:
-            out["torque"] = point.peak_torque_N_m / b.torque
+            out["torque"] = point.mean_torque_N_m / b.torque
         if b.power is not None:
             out["power"] = point.power_W / b.power
         return out

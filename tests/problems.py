@@ -221,14 +221,15 @@ class _Tables:
         out = np.repeat(out[..., None], self.feeds.size, axis=2)
         if lim.surface_location_error_m is not None:
             out = np.maximum(out, np.abs(self.sle(rpm)) / lim.surface_location_error_m)
+        per = self.power_per[0] * (1 - t) + self.power_per[1] * t  # W per (rpm m), affine in feed
         if lim.spindle_power_W is not None:
-            per = self.power_per[0] * (1 - t) + self.power_per[1] * t
             out = np.maximum(out, rpm[:, None, None] * self.depths[None, :, None] * per[None, None, :]
                              / lim.spindle_power_W)
         if lim.max_force_N is not None:
             out = np.maximum(out, self.peak[None, :, :, 0] / lim.max_force_N)
-        if lim.spindle_torque_N_m is not None:
-            out = np.maximum(out, self.peak[None, :, :, 1] / lim.spindle_torque_N_m)
+        if lim.spindle_torque_N_m is not None:  # the MEAN torque (formats.md): power / (2 pi n / 60)
+            mean_torque = self.depths[:, None] * per[None, :] * 60.0 / (2.0 * np.pi)
+            out = np.maximum(out, mean_torque[None] / lim.spindle_torque_N_m)
         return out
 
 
@@ -245,7 +246,7 @@ def point_ratio(model, setup, rpm, ap, fz, limit) -> float:
     if lim.max_force_N is not None:
         r.append(fr.peak_force_N / lim.max_force_N)
     if lim.spindle_torque_N_m is not None:
-        r.append(fr.peak_torque_N_m / lim.spindle_torque_N_m)
+        r.append(fr.mean_torque_N_m / lim.spindle_torque_N_m)
     return max(r)
 
 

@@ -226,27 +226,37 @@ def test_depth_crossing_the_one_dof_limit_flags_exactly_the_points_above_the_mar
     assert np.all(np.isnan(result.nearest_stable_rpm[~expected]))
 
 
-def test_force_and_power_limits_flag_exactly_where_the_closed_forms_exceed_them():
+def test_force_torque_and_power_limits_flag_exactly_where_the_closed_forms_exceed_them():
+    """Peak force, MEAN torque (formats.md: the spindle's continuous rating) and mean power against
+    their closed forms for a straight-fluted slot; the torque limit sits between depths where the
+    mean torque is below it and the peak torque far above it, so only the mean is flagged."""
     coef = CuttingCoefficients(KT, KR, 0.0, 2.0e4, 1.0e4)  # edge forces too
     rpm, fz = 10000.0, 1e-4
     depth = np.linspace(0.2e-3, 2.0e-3, 19)
     path = replace(line_path(19, coef=coef, rpm=rpm, fz=fz), axial_depth_m=depth)
     peak = depth * np.hypot(KT * fz + coef.Kte_N_m, KR * fz + coef.Kre_N_m)  # one tooth, phi = 90 deg
     st, ex = 0.0, np.pi  # slot
-    power = 2 * np.pi * rpm / 60 * STRAIGHT.diameter_m / 2 * depth * TEETH / (2 * np.pi) * (
+    torque = STRAIGHT.diameter_m / 2 * depth * TEETH / (2 * np.pi) * (
         KT * fz * (np.cos(st) - np.cos(ex)) + coef.Kte_N_m * (ex - st))
-    limits = Limits(max_force_N=float(np.mean(peak[8:10])), spindle_power_W=float(np.mean(power[12:14])))
+    power = 2 * np.pi * rpm / 60 * torque
+    limits = Limits(max_force_N=float(np.mean(peak[8:10])), spindle_power_W=float(np.mean(power[12:14])),
+                    spindle_torque_N_m=float(np.mean(torque[15:17])))
     stiff = ModalModel([FN], [ZETA], [1e6 * STIFF], [[0, 1, 0]])  # no chatter flags in the way
     result = check_one(path, stiff, limits=limits)
     assert np.allclose(result.peak_force_N, peak, rtol=CLOSED_FORM_RTOL)
     assert np.allclose(result.power_W, power, rtol=CLOSED_FORM_RTOL)
+    assert np.allclose(result.mean_torque_N_m, torque, rtol=CLOSED_FORM_RTOL)
     assert np.array_equal(result.flagged("force"), peak > limits.max_force_N)
     assert np.array_equal(result.flagged("power"), power > limits.spindle_power_W)
-    assert result.counts() == {"chatter": 0, "surface_error": 0, "force": 10, "power": 6, "pose_out_of_range": 0}
+    assert np.array_equal(result.flagged("torque"), torque > limits.spindle_torque_N_m)
+    assert result.counts() == {"chatter": 0, "surface_error": 0, "force": 10, "power": 6, "torque": 3,
+                               "pose_out_of_range": 0}
+    expected_of = {"force": (peak, limits.max_force_N), "power": (power, limits.spindle_power_W),
+                   "torque": (torque, limits.spindle_torque_N_m)}
     for v in result.violations:
-        expected = {"force": peak, "power": power}[v["kind"]][v["index"]]
-        assert v["value"] == pytest.approx(expected, rel=CLOSED_FORM_RTOL)
-        assert v["limit"] == {"force": limits.max_force_N, "power": limits.spindle_power_W}[v["kind"]]
+        values, limit = expected_of[v["kind"]]
+        assert v["value"] == pytest.approx(values[v["index"]], rel=CLOSED_FORM_RTOL)
+        assert v["limit"] == limit
 
 
 def test_surface_error_limit_flags_exactly_where_predict_point_exceeds_it():

@@ -27,6 +27,7 @@ import pytest
 from oma.cutting import Cut, CuttingCoefficients, Material, Tool
 from oma.errors import SetupError
 from oma.frf_table import FRFTable
+from oma.modal import ModalModel
 from oma.modal_io import read_modal_model
 from planner.cut_model import CutModel
 from planner.optimize import CONSTRAINTS, Plan, PlanSettings, _diagnose, plan
@@ -117,7 +118,7 @@ def assert_rechecked(result: Plan, setup: Setup, model, method="zoa"):
     assert lim.axial_depth_m[0] <= result.axial_depth_m <= lim.axial_depth_m[1]
     assert lim.feed_per_tooth_m[0] <= result.feed_per_tooth_m <= lim.feed_per_tooth_m[1]
     for value, limit in ((abs(p.surface_location_error_m), lim.surface_location_error_m),
-                         (p.peak_force_N, lim.max_force_N), (p.peak_torque_N_m, lim.spindle_torque_N_m),
+                         (p.peak_force_N, lim.max_force_N), (p.mean_torque_N_m, lim.spindle_torque_N_m),
                          (p.power_W, lim.spindle_power_W)):
         if limit is not None:
             assert value <= tol * limit
@@ -238,6 +239,46 @@ def test_aluminium_matches_grid_search(aluminium_plan, planning_model):
     ref = problems.grid_search(setup, planning_model)
     assert aluminium_plan.mrr_m3_s == pytest.approx(ref.mrr_m3_s, rel=GRID_RTOL)
     assert aluminium_plan.mrr_m3_s >= ref.mrr_m3_s * (1 - 1e-6)
+
+
+def roughing_setup() -> Setup:
+    """The issue's roughing case: aluminium (Al7075), a 2-flute 25.4 mm end mill at half immersion
+    (ae 12.7 mm), a 30 N m / 15 kW spindle that turns at most 3000 rpm, on a structure so stiff
+    that only the spindle limits the cut."""
+    tool = Tool(2, 0.0254, np.deg2rad(30.0))
+    cut = Cut(1e-4, 0.0127, "down", feed_direction=[1, 0, 0], normal_direction=[0, 1, 0])
+    material = Material("Al7075", CuttingCoefficients(7.96e8, 1.68e8, 2.22e8, 2.77e4, 3.08e4, 1.8e3))
+    limits = Limits(spindle_rpm=(1000.0, 3000.0), axial_depth_m=(5e-4, 0.05), feed_per_tooth_m=(5e-5, 2e-4),
+                    spindle_power_W=15000.0, spindle_torque_N_m=30.0, stability_margin=0.8)
+    return Setup(tool, cut, material, limits)
+
+
+def test_torque_limit_bounds_the_mean_torque_not_the_peak():
+    """formats.md: ``spindle_torque_N_m`` bounds the MEAN cutting torque over a revolution. On a
+    half-immersion 2-flute cut the peak torque is about 3x the mean, so the two readings give
+    different optima. Closed form: at 3000 rpm (the speed bound; the power, 2 pi 3000 / 60 * 30 N m
+    = 9.4 kW, stays below 15 kW) the mean torque ``ap (tau_c fz + tau_e)`` binds, and MRR =
+    ae N fz n / 60 * T / tau(fz) grows with fz, so fz is at its bound."""
+    setup = roughing_setup()
+    stiff = ModalModel([900.0, 1100.0], [0.05, 0.05], [5e9, 5e9], [[1, 0, 0], [0, 1, 0]])
+    result = plan(setup, stiff)
+    assert_rechecked(result, setup, stiff)
+    assert {"torque", "rpm_max", "feed_max"} <= set(result.active_constraints)
+    lim, fz = setup.limits, setup.limits.feed_per_tooth_m[1]
+    cut = replace(setup.cut, feed_per_tooth_m=fz)
+    coef = setup.material.cutting_coefficients
+    per_mm = predict_point(stiff, setup.tool, cut, coef, spindle_rpm=3000.0, axial_depth_m=1e-3)
+    depth = lim.spindle_torque_N_m / (per_mm.mean_torque_N_m / 1e-3)
+    assert result.spindle_rpm == pytest.approx(3000.0, rel=CLOSED_FORM_RTOL)
+    assert result.axial_depth_m == pytest.approx(depth, rel=RECHECK_RTOL)
+    at = predict_point(stiff, setup.tool, cut, coef, spindle_rpm=result.spindle_rpm, axial_depth_m=result.axial_depth_m)
+    assert at.mean_torque_N_m == pytest.approx(lim.spindle_torque_N_m, rel=RECHECK_RTOL)
+    # the peak torque is well above the limit: bounding it (the old reading) would have stopped at
+    # less than half the depth, so less than half the removal rate at the same speed and feed
+    assert at.peak_torque_N_m > 1.5 * lim.spindle_torque_N_m
+    peak_depth = CutModel(stiff, setup.tool, setup.cut, coef).depth_boundary(1, lim.spindle_torque_N_m, [fz],
+                                                                             *lim.axial_depth_m)[0]
+    assert peak_depth < 0.5 * result.axial_depth_m
 
 
 def test_sdm_low_immersion_matches_grid_search(tool_model):
