@@ -102,12 +102,11 @@ def _residuals(robot, theta, data, pairs, sig, r_ref):
     return np.concatenate(out)
 
 
-def _fit(robot, data, theta0, prior_sd, sig, r_ref, use_correction):
+def _fit(robot, data, theta0, center, prior_sd, sig, r_ref, use_correction):
+    """Least squares from ``theta0`` with the prior centred on ``center`` (ln k; gamma at 0)."""
     theta = theta0.copy() if use_correction else theta0[:6].copy()
     prior = np.r_[np.full(6, prior_sd), 1.0][: theta.size]
-    center = theta.copy()
-    if use_correction:
-        center[6] = 0.0
+    center = np.r_[center[:6], 0.0][: theta.size]
     pairs = None
     for _ in range(4):
         pairs = _match(_modes(robot, theta, data, r_ref), data)
@@ -123,7 +122,32 @@ def _fit(robot, data, theta0, prior_sd, sig, r_ref, use_correction):
     new_pairs = _match(_modes(robot, theta, data, r_ref), data)
     jac = sol.jac[: sol.fun.size - theta.size]
     res = sol.fun[: sol.fun.size - theta.size]
-    return theta, new_pairs, jac, res
+    return theta, new_pairs, jac, res, float(sol.cost)
+
+
+def _global_starts(robot, data, start, sig, r_ref, rng, *, n_samples=1500, n_best=4, half_width=math.log(4.0)):
+    """Best ``n_best`` of ``n_samples`` random ``ln k`` around ``start`` (+- ``half_width``), scored
+    by the relaxed misfit (each identified mode against its nearest predicted mode, no one-to-one
+    pairing): a vectorised global stage before the local fits, which from one start can lock on
+    to a wrong pairing of close modes."""
+    samples = start[:6] + rng.uniform(-half_width, half_width, (n_samples, 6))
+    samples[0] = start[:6]
+    m = len(data.models)
+    q = np.tile(data.q, (n_samples, 1))
+    k = np.repeat(np.exp(samples), m, axis=0) * np.tile(correction_factor(data.reach, 0.0, r_ref), (n_samples, 1))
+    modes = robot_modes(robot, q, stiffness=k, masses=np.tile(data.masses, (n_samples, 1, 1)))
+    f = np.log(modes.frequency_hz).reshape(n_samples, m, 6)
+    kk = np.log(np.where(np.isfinite(modes.stiffness_N_m), modes.stiffness_N_m, 1e300)).reshape(n_samples, m, 6)
+    u = modes.directions.reshape(n_samples, m, 6, 3)
+    cost = np.zeros(n_samples)
+    for i, model in enumerate(data.models):
+        df = (f[:, i, None, :] - np.log(model.natural_frequency_hz)[None, :, None]) / sig[0]
+        dk = (kk[:, i, None, :] - np.log(model.stiffness_N_m)[None, :, None]) / sig[1]
+        dot = np.abs(np.einsum("spk,rk->srp", u[:, i], model.directions))
+        du2 = 2 * (1 - np.clip(dot, 0, 1)) / sig[2] ** 2
+        cost += np.min(df**2 + dk**2 + du2, axis=2).sum(axis=1)
+    best = np.argsort(cost)[:n_best]
+    return [np.r_[samples[b], 0.0] for b in best]
 
 
 def _model_errors(robot, theta, data, pairs, r_ref):
@@ -263,7 +287,7 @@ def _feature_jacobian(robot, theta, data, sig, r_ref, n_modes=3, step=1e-5):
 def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str] | None = None,
               correction: bool | str = "auto", sigma_frequency: float = 0.01, sigma_stiffness: float = 0.05,
               sigma_direction_deg: float = 2.0, prior_sd: float = 1.0, identifiable_sd: float = 0.05,
-              n_candidates: int = 200, seed: int = 0) -> Calibration:
+              n_candidates: int = 200, n_starts: int = 4, seed: int = 0) -> Calibration:
     """Fit the joint stiffness and damping of ``robot`` to modal models identified at several poses.
 
     Parameters
@@ -288,6 +312,9 @@ def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str
         Largest posterior standard deviation of ``ln k`` for a joint to count as identifiable.
     n_candidates : int
         Candidate poses (and working-region poses) for the next-pose proposal.
+    n_starts : int
+        Extra starting points of the local fit: the best of a random global sample of ``ln k``
+        within a factor 4 of the start (close modes can pair wrongly from one start).
     seed : int
         Of the candidate sample.
 
@@ -316,6 +343,7 @@ def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str
                                r_ref) ** 2) for s in scales]
     start_scale = float(np.exp(scales[int(np.argmin(costs))]))
     start = theta0 + np.r_[np.full(6, np.log(start_scale)), 0.0]
+    rng_starts = np.random.default_rng(seed)
 
     def loo(use_corr, theta_full):
         out = []
@@ -323,7 +351,7 @@ def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str
             keep = [j for j in range(len(models)) if j != i]
             sub = _Data(q=q[keep], masses=data.masses[keep], reach=data.reach[keep],
                         models=tuple(models[j] for j in keep))
-            th, _, _, _ = _fit(robot, sub, theta_full, prior_sd, sig, r_ref, use_corr)
+            th = _fit(robot, sub, theta_full, start, prior_sd, sig, r_ref, use_corr)[0]
             one = _Data(q=q[[i]], masses=data.masses[[i]], reach=data.reach[[i]], models=(models[i],))
             pairs = _match(_modes(robot, th, one, r_ref), one)
             f_err, k_err = _model_errors(robot, th, one, pairs, r_ref)
@@ -336,8 +364,13 @@ def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str
         options = [False]
         if correction is True:
             warnings.append("the reach correction needs at least 3 models; fitted without it")
+    # multi-start: close modes can pair wrongly from one start (local minima); the best few of a
+    # vectorised global sample, plus the common-scale guess, are refined
+    inits = [start] + _global_starts(robot, data, start, sig, r_ref, rng_starts, n_best=n_starts)
+    best = min((_fit(robot, data, init, start, prior_sd, sig, r_ref, False) for init in inits), key=lambda f: f[4])
     for use in options:
-        theta, pairs, jac, res = _fit(robot, data, start, prior_sd, sig, r_ref, use)
+        theta, pairs, jac, res, _ = best if not use else _fit(robot, data, np.r_[best[0][:6], 0.0], start,
+                                                                 prior_sd, sig, r_ref, True)
         fits[use] = (theta, pairs, jac, res, loo(use, np.r_[theta, 0.0][:7]) if len(models) > 1 else [])
     use = options[0]
     if len(options) == 2:
