@@ -10,7 +10,7 @@ import pytest
 
 from oma.errors import InputError
 from oma.modal import ModalModel
-from planner.robot import read_robot, robot_modes
+from planner.robot import read_robot, robot_modes, write_robot
 from planner.robot.calibrate import calibrate, trust
 from planner.robot.correction import correction_factor, reach_m
 from robot_helpers import identified_models, region_poses, write_robot_file
@@ -80,7 +80,7 @@ def test_unidentifiable_joint_is_flagged_and_kept_at_its_prior(truth):
     assert any("joint 6" in w for w in cal.warnings)
 
 
-def test_reach_correction_is_recovered_and_helps_held_out_poses(truth):
+def test_reach_correction_is_recovered_and_helps_held_out_poses(truth, tmp_path):
     # a truth of the correction's own class (shoulder and elbow soften with reach, gamma = 1.5):
     # the plain rigid-link fit leaves a structured error that the correction removes
     rng = np.random.default_rng(13)
@@ -99,6 +99,11 @@ def test_reach_correction_is_recovered_and_helps_held_out_poses(truth):
         errors[use] = np.median(np.abs(_dominant(robot_modes(cal.robot, q_held), "frequency_hz") / f_true - 1))
         if use:
             assert cal.correction["gamma"] == pytest.approx(1.5, abs=0.5)
+            # the correction travels through the robot file (x_correction)
+            back = read_robot(write_robot(cal.robot, tmp_path / "calibrated.yaml"))
+            np.testing.assert_allclose(robot_modes(back, q_held).frequency_hz, robot_modes(cal.robot, q_held).frequency_hz,
+                                       rtol=1e-12)
+            assert back.correction == cal.correction
     assert errors[True] < 0.5 * errors[False]
 
 

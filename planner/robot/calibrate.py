@@ -58,7 +58,7 @@ __all__ = ["Calibration", "calibrate", "trust", "Trust", "parse_correction", "TR
 TRUST_JOINTS = (1, 2, 3, 4)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Data:
     q: np.ndarray  # (m, 6) rad
     masses: np.ndarray  # (m, 6, 6)
@@ -161,7 +161,7 @@ def _model_errors(robot, theta, data, pairs, r_ref):
     return np.array(f_err), np.array(k_err)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Calibration:
     """Result of :func:`calibrate`.
 
@@ -444,7 +444,7 @@ def _fit_damping(modes, data, pairs, k):
 
 
 # ------------------------------------------------------------------------------------ trust
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Trust:
     """Whether a prediction at pose ``q`` is covered by the calibration.
 

@@ -101,7 +101,7 @@ def _mass_matrix(robot: Robot, rot, pos) -> np.ndarray:
     return 0.5 * (m + np.swapaxes(m, -1, -2))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RobotModes:
     """The compliant-joint modes at ``n`` poses, ascending frequency.
 
