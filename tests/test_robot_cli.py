@@ -12,7 +12,7 @@ import pytest
 from oma.modal_io import read_modal_model, write_modal_model
 from planner.cli import main
 from planner.robot import read_robot
-from robot_helpers import identified_models, region_poses, write_robot_file
+from robot_helpers import identified_models, region_poses, urdf_path, write_robot_file
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "kr500_acetal"
 POSE = ["0", "-60", "100", "0", "50", "0"]
@@ -89,7 +89,8 @@ def test_robot_option_on_lobes_and_predict_equals_the_written_model(calibrated, 
     assert code == 0, err and "stable" in json.loads(out)
 
 
-@pytest.mark.parametrize("case", ["no_pose", "no_stiffness", "outside_limits", "model_and_robot", "joints_no_robot"])
+@pytest.mark.parametrize("case", ["no_pose", "pose_outside", "bad_urdf", "no_stiffness", "outside_limits",
+                                  "model_and_robot", "joints_no_robot"])
 def test_bad_input_exit_2_one_line_nothing_written(case, cell, calibrated, tmp_path, capsys):
     d, paths = cell
     out = tmp_path / "out.yaml"
@@ -98,6 +99,20 @@ def test_bad_input_exit_2_one_line_nothing_written(case, cell, calibrated, tmp_p
         write_modal_model(read_modal_model(paths[0]).with_modes(joints_deg=None), bad)
         argv = ["robot", "calibrate", d / "bare.yaml", "--models", paths[1], bad, "-o", out]
         expected = f"{bad}: pose.joints_deg: expected the pose"
+    elif case == "pose_outside":
+        bad = tmp_path / "outside.yaml"
+        model = read_modal_model(paths[0])
+        write_modal_model(model.with_modes(joints_deg=[0, 20, 90, 0, 45, 0]), bad)
+        argv = ["robot", "calibrate", d / "bare.yaml", "--models", paths[1], bad, "-o", out]
+        expected = f"{bad}: pose.joints_deg: expected joint 2 (joint_2) within [-130, 5] deg, found 20 deg"
+    elif case == "bad_urdf":
+        urdf = tmp_path / "bad.urdf"
+        urdf.write_text(urdf_path().read_text().replace('<joint name="joint_3" type="revolute">',
+                                                        '<joint name="joint_3" type="continuous">'))
+        robot_file = tmp_path / "robot.yaml"
+        robot_file.write_text((d / "bare.yaml").read_text().replace(str(urdf_path()), str(urdf)))
+        argv = ["robot", "calibrate", robot_file, "--models", *paths, "-o", out]
+        expected = f"{urdf}: joint[@name='joint_3']: expected a revolute (or fixed) joint, found type 'continuous'"
     elif case == "no_stiffness":
         argv = ["robot", "model", d / "bare.yaml", "--joints-deg", *POSE, "-o", out]
         expected = "bare.yaml: joints.stiffness_N_m_rad: expected joint stiffness"
