@@ -93,7 +93,7 @@ def _cmd_calibrate(args) -> int:
     payload = {"robot": args.output, **result.to_dict()}
 
     def human(p):
-        lines = [f"joint stiffness (N m/rad): " + ", ".join(
+        lines = ["joint stiffness (N m/rad): " + ", ".join(
             f"{k:.3g}{'' if ok else ' (?)'}" for k, ok in zip(p["joint_stiffness_N_m_rad"], p["identifiable"]))]
         lines.append("fit error per model: " + ", ".join(f"{100 * e:.1f} %" for e in p["fit_error"]))
         if p["leave_one_out"]:
