@@ -125,3 +125,23 @@ def test_bad_input(truth):
     outside = ModalModel([8.0], [0.05], [1e6], [[1.0, 0, 0]], joints_deg=[0, 20, 90, 0, 45, 0])
     with pytest.raises(InputError, match=r"p.yaml: pose.joints_deg: expected joint 2 \(joint_2\) within"):
         calibrate(truth, [outside], names=["p.yaml"])
+
+
+def test_calibration_plot(same_class, tmp_path):
+    import matplotlib.pyplot as plt
+
+    cal, _ = same_class
+    fig, axes = cal.plot()
+    assert len(axes) == 2 and axes[0].get_yscale() == "log"
+    assert len(axes[1].patches) == len(cal.leave_one_out)
+    fig.savefig(tmp_path / "cal.png")
+    plt.close(fig)
+
+
+def test_importing_the_robot_package_does_not_import_matplotlib():
+    import subprocess
+    import sys
+
+    code = "import sys, planner.robot, planner.robot.cli; print('matplotlib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -211,6 +211,12 @@ class Calibration:
     model_names: tuple = ()
     warnings: tuple = field(default_factory=tuple)
 
+    def plot(self, ax=None):
+        """Stiffness with its uncertainty and the leave-one-out errors (:func:`.plots.plot_calibration`)."""
+        from .plots import plot_calibration
+
+        return plot_calibration(self, ax=ax)
+
     def to_dict(self) -> dict:
         return {"joint_stiffness_N_m_rad": self.joint_stiffness_N_m_rad.tolist(),
                 "stiffness_sd": self.stiffness_sd.tolist(), "identifiable": [bool(x) for x in self.identifiable],
