@@ -116,6 +116,17 @@ def test_trust_region(same_class):
     verdict = trust(cal.robot, far)
     assert not verdict.trusted and verdict.outside_joints == (2,)
     assert "outside the calibrated region: joint(s) 2" in verdict.warnings[0]
+    # vectorised: the same verdicts and uncertainties at many poses at once
+    from planner.robot import trust_poses
+
+    many = np.vstack([poses, far])
+    trusted, sd, outside = trust_poses(cal.robot, many)
+    for i, qi in enumerate(many):
+        one = trust(cal.robot, qi)
+        assert trusted[i] == one.trusted and sd[i] == pytest.approx(one.frequency_sd, rel=1e-9)
+    assert outside[-1].tolist() == [False, True, False, False, False, False]
+    # the propagated uncertainty is small at the calibration poses (about the noise / sqrt(poses))
+    assert np.all(sd[:-1] < 0.02)
 
 
 def test_bad_input(truth):

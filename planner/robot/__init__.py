@@ -8,7 +8,7 @@ stiffness and damping from identified poses, trust), :mod:`.cli` (``robomill rob
 All functions are vectorised over poses: ``q`` in rad, shape ``(n, 6)`` or ``(6,)``.
 """
 
-from .calibrate import Calibration, Trust, calibrate, trust
+from .calibrate import Calibration, Trust, calibrate, trust, trust_poses
 from .description import Robot, RobotError, ToolBody, read_robot, write_robot
 from .dynamics import RobotModes, mass_matrix, robot_modal_model, robot_modes
 from .ik import (IKSolutions, PathIK, continuous_branch, inverse_kinematics, joint_limit_distance, singularity_measure,
@@ -18,4 +18,4 @@ from .kinematics import forward_kinematics, tip_jacobian, tool_axis
 __all__ = ["Robot", "RobotError", "ToolBody", "read_robot", "write_robot", "forward_kinematics", "tip_jacobian",
            "tool_axis", "mass_matrix", "robot_modes", "RobotModes", "robot_modal_model", "inverse_kinematics",
            "IKSolutions", "PathIK", "continuous_branch", "singularity_measure", "joint_limit_distance", "tool_rotation",
-           "calibrate", "Calibration", "trust", "Trust"]
+           "calibrate", "Calibration", "trust", "trust_poses", "Trust"]

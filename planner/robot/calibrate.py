@@ -52,7 +52,7 @@ from .correction import CORRECTION_JOINTS, correction_factor, reach_m
 from .description import KR500_JOINT_STIFFNESS_N_M_RAD, Robot
 from .dynamics import mass_matrix, robot_modes
 
-__all__ = ["Calibration", "calibrate", "trust", "Trust", "parse_correction", "TRUST_JOINTS"]
+__all__ = ["Calibration", "calibrate", "trust", "trust_poses", "Trust", "parse_correction", "TRUST_JOINTS"]
 
 #: Joints (0-based) whose values decide the trust region (2-5 in the 1-based numbering).
 TRUST_JOINTS = (1, 2, 3, 4)
@@ -474,31 +474,54 @@ class Trust:
                 "warnings": list(self.warnings)}
 
 
-def trust(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: float = 10.0) -> Trust:
-    """Decide whether the calibrated model's prediction at ``q`` (rad, (6,)) is trusted (see the
-    module docstring)."""
+def trust_poses(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: float = 10.0):
+    """The trust rule (module docstring) at many poses ``q`` (rad, (n, 6)), vectorised.
+
+    Returns
+    -------
+    trusted : ndarray of bool, shape (n,)
+    frequency_sd : ndarray, shape (n,)
+        Propagated relative one-sigma of the dominant mode's frequency (inf without a calibration
+        record).
+    outside : ndarray of bool, shape (n, 6)
+        Joints (of 2-5) outside the calibration poses' range widened by ``trust_margin_deg``.
+    """
+    q = np.atleast_2d(np.asarray(q, float))
+    n = q.shape[0]
     cal = robot.calibration or {}
     if "poses_deg" not in cal or "covariance" not in cal:
-        return Trust(False, math.inf, (), ("the robot was not calibrated by robomill (no calibration record): "
-                                           "the model's accuracy is unknown",))
-    q = np.asarray(q, float).reshape(6)
+        return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 6), bool)
     poses = np.radians(np.asarray(cal["poses_deg"], float))
     margin = math.radians(trust_margin_deg)
     lo, hi = poses.min(axis=0) - margin, poses.max(axis=0) + margin
-    outside = tuple(j + 1 for j in TRUST_JOINTS if not lo[j] <= q[j] <= hi[j])
+    outside = np.zeros((n, 6), bool)
+    idx = list(TRUST_JOINTS)
+    outside[:, idx] = (q[:, idx] < lo[idx]) | (q[:, idx] > hi[idx])
     theta = np.asarray(cal["parameters"], float)
     cov = np.asarray(cal["covariance"], float)
     r_ref = float(cal.get("reference_reach_m", 1.0))
-    g, _ = _log_f_dominant_gradient(robot.with_joints(correction=None), theta, q[None], r_ref)
-    sd = float(np.sqrt(g[0] @ cov @ g[0]))
+    g, _ = _log_f_dominant_gradient(robot, theta, q, r_ref)
+    sd = np.sqrt(np.einsum("ni,ij,nj->n", g, cov, g))
+    return ~outside.any(axis=1) & (sd <= trust_sd), sd, outside
+
+
+def trust(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: float = 10.0) -> Trust:
+    """Decide whether the calibrated model's prediction at ``q`` (rad, (6,)) is trusted (see the
+    module docstring), with the reasons as warnings."""
+    if "covariance" not in (robot.calibration or {}):
+        return Trust(False, math.inf, (), ("the robot was not calibrated by robomill (no calibration record): "
+                                           "the model's accuracy is unknown",))
+    trusted, sd, outside = trust_poses(robot, np.asarray(q, float).reshape(1, 6), trust_sd=trust_sd,
+                                       trust_margin_deg=trust_margin_deg)
+    joints = tuple(int(j) + 1 for j in np.flatnonzero(outside[0]))
     warnings = []
-    if outside:
-        warnings.append("pose outside the calibrated region: joint(s) " + ", ".join(map(str, outside)) +
+    if joints:
+        warnings.append("pose outside the calibrated region: joint(s) " + ", ".join(map(str, joints)) +
                         f" beyond the calibration poses' range +- {trust_margin_deg:g} deg")
-    if sd > trust_sd:
-        warnings.append(f"the dominant mode's frequency is uncertain here ({100 * sd:.1f} % one-sigma, more than "
+    if sd[0] > trust_sd:
+        warnings.append(f"the dominant mode's frequency is uncertain here ({100 * sd[0]:.1f} % one-sigma, more than "
                         f"{100 * trust_sd:g} %)")
-    return Trust(not outside and sd <= trust_sd, sd, outside, tuple(warnings))
+    return Trust(bool(trusted[0]), float(sd[0]), joints, tuple(warnings))
 
 
 def parse_correction(mapping: dict, root) -> dict:
