@@ -107,6 +107,22 @@ def test_reach_correction_is_recovered_and_helps_held_out_poses(truth, tmp_path)
     assert errors[True] < 0.5 * errors[False]
 
 
+def test_spindle_modes_in_the_identified_models_are_left_out(truth):
+    # identified models that also hold a 650 Hz spindle mode: it pairs with no robot mode, the
+    # robot's joints come out as without it, and a warning says so
+    rng = np.random.default_rng(14)
+    q_cal = region_poses(truth, 4, rng)
+    plain = identified_models(truth, q_cal, np.random.default_rng(15))
+    spindle = ModalModel([650.0], [0.03], [3e7], [[1.0, 0, 0]])
+    from oma.modal import in_series
+
+    with_spindle = [in_series(m, spindle) for m in plain]
+    a = calibrate(_start(truth), plain, correction=False, n_candidates=20)
+    b = calibrate(_start(truth), with_spindle, correction=False, n_candidates=20)
+    np.testing.assert_allclose(b.joint_stiffness_N_m_rad, a.joint_stiffness_N_m_rad, rtol=1e-6)
+    assert any("4 identified mode(s) outside the robot modes' band" in w for w in b.warnings)
+
+
 def test_trust_region(same_class):
     cal, _ = same_class
     poses = np.radians(cal.robot.calibration["poses_deg"])

@@ -54,6 +54,8 @@ from .dynamics import mass_matrix, robot_modes
 
 __all__ = ["Calibration", "calibrate", "trust", "trust_poses", "Trust", "parse_correction", "TRUST_JOINTS"]
 
+#: Identified modes beyond the predicted tool-tip modes' band widened by this factor are not paired.
+_BAND_FACTOR = 3.0
 #: Joints (0-based) whose values decide the trust region (2-5 in the 1-based numbering).
 TRUST_JOINTS = (1, 2, 3, 4)
 
@@ -77,15 +79,20 @@ def _modes(robot, theta, data, r_ref):
 
 
 def _match(modes, data, *, min_fraction=1e-3):
-    """Pairs (measured mode, predicted mode) per model."""
+    """Pairs (measured mode, predicted mode) per model. Identified modes outside the band of the
+    predicted tool-tip modes widened by a factor 3 (e.g. a spindle mode hundreds of Hz up) pair
+    with nothing."""
     pairs = []
     compliance = modes.compliance_m_N
     for i, model in enumerate(data.models):
         cand = np.flatnonzero(compliance[i] >= min_fraction * compliance[i].max())
-        mac = (model.directions @ modes.directions[i, cand].T) ** 2
-        cost = (1 - mac) + np.abs(np.log(modes.frequency_hz[i, cand][None, :] / model.natural_frequency_hz[:, None]))
+        f_c = modes.frequency_hz[i, cand]
+        inside = np.flatnonzero((model.natural_frequency_hz >= f_c.min() / _BAND_FACTOR)
+                                & (model.natural_frequency_hz <= f_c.max() * _BAND_FACTOR))
+        mac = (model.directions[inside] @ modes.directions[i, cand].T) ** 2
+        cost = (1 - mac) + np.abs(np.log(f_c[None, :] / model.natural_frequency_hz[inside, None]))
         rows, cols = linear_sum_assignment(cost)
-        pairs.append((rows, cand[cols]))
+        pairs.append((inside[rows], cand[cols]))
     return pairs
 
 
@@ -156,6 +163,10 @@ def _model_errors(robot, theta, data, pairs, r_ref):
     f_err, k_err = [], []
     for i, (rows, cols) in enumerate(pairs):
         m = data.models[i]
+        if len(rows) == 0:
+            f_err.append(math.inf)
+            k_err.append(math.inf)
+            continue
         f_err.append(float(np.sqrt(np.mean((modes.frequency_hz[i, cols] / m.natural_frequency_hz[rows] - 1) ** 2))))
         k_err.append(float(np.sqrt(np.mean((modes.stiffness_N_m[i, cols] / m.stiffness_N_m[rows] - 1) ** 2))))
     return np.array(f_err), np.array(k_err)
@@ -405,6 +416,10 @@ def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str
     corr = ({"kind": "reach", "gamma": float(theta[6]), "reference_reach_m": r_ref, "joints": list(CORRECTION_JOINTS)}
             if use else None)
     f_err, k_err = _model_errors(robot, theta, data, pairs, r_ref)
+    unpaired = sum(m.n_modes - len(rows) for m, (rows, _) in zip(models, pairs))
+    if unpaired:
+        warnings.append(f"{unpaired} identified mode(s) outside the robot modes' band (widened by a factor "
+                        f"{_BAND_FACTOR:g}) or beyond their number (e.g. spindle/tool modes): left out of the calibration")
     # next pose
     rng = np.random.default_rng(seed)
     cand = _sample_region(robot, q, n_candidates, rng)
