@@ -486,7 +486,7 @@ def test_plot_colours_the_path_by_margin_and_marks_violations(example):
     try:
         labels = ax.get_legend_handles_labels()[1]
         counts = result.counts()
-        assert sorted(labels) == sorted(f"{VIOLATION_STYLE[k][3]} ({counts[k]})" for k in VIOLATION_KINDS if counts[k])
+        assert sorted(labels) == sorted(f"{VIOLATION_STYLE[k][3]} ({counts[k]})" for k in VIOLATION_KINDS if counts.get(k))
         margin_points = ax.collections[0]
         assert len(margin_points.get_offsets()) == result.n_points
         colours = margin_points.get_array()
