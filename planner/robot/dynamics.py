@@ -27,7 +27,7 @@ from oma._arrays import readonly as _ro
 from oma.modal import ModalModel, in_series
 
 from .description import Robot, RobotError
-from .kinematics import _cross, _tip_jacobian, as_poses, body_jacobians, link_frames
+from .kinematics import _cross, _tip_jacobian, as_poses, link_frames
 
 __all__ = ["body_inertias", "mass_matrix", "RobotModes", "robot_modes", "damping_matrix", "robot_modal_model",
            "direct_receptance"]
