@@ -377,7 +377,7 @@ def test_nearest_stable_speed_respects_the_speed_range():
 # ------------------------------------------------------------------------------- poses and caching
 def test_example_points_beyond_the_identified_poses_are_flagged(example):
     toolpath, models, result = example
-    s = (toolpath.positions_m[:, 1] + 0.15) / 0.3  # the path parameter of make_example.py
+    s = (toolpath.positions_m[:, 0] + 0.15) / 0.3  # the path parameter of make_example.py (part frame x)
     beyond = (s < 0) | (s > 1)
     assert np.array_equal(result.flagged("pose_out_of_range"), beyond)
     assert np.array_equal(result.in_span, ~beyond)
@@ -397,7 +397,9 @@ def test_out_of_span_points_use_the_model_at_the_nearest_span_point(example):
         assert not result.in_span[i]
         joints = np.round(toolpath.joints_deg[i] / 0.01) * 0.01  # the check's pose rounding
         model = poses.at(joints, out_of_span="clamp")
-        op = predict_point(model, toolpath.tool, cut_at(toolpath, i), toolpath.material.cutting_coefficients,
+        # the check works in the machine frame (the example's path is in the part frame)
+        op = predict_point(model, toolpath.tool, cut_at(toolpath.in_machine_frame(), i),
+                           toolpath.material.cutting_coefficients,
                            spindle_rpm=toolpath.spindle_rpm[i], axial_depth_m=toolpath.axial_depth_m[i])
         assert result.depth_limit_m[i] == pytest.approx(op.depth_limit_m, rel=LIMIT_RTOL)
         assert result.surface_location_error_m[i] == pytest.approx(op.surface_location_error_m, rel=SLE_RTOL)

@@ -187,6 +187,14 @@ def test_cli_check_robot(cell, tmp_path, capsys):
     assert main(["check", str(d / "path.yaml"), "--robot", str(d / "robot.yaml"), "--models",
                  str(EXAMPLE / "poses" / "pose_1.yaml")]) == 2
     assert "either --models or --robot" in capsys.readouterr().err
-    plain = EXAMPLE / "toolpath.yaml"
+    # the example's robot is not calibrated yet: exit 2, one line
+    assert main(["check", str(EXAMPLE / "toolpath.yaml")]) == 2
+    assert "robot.yaml: joints.stiffness_N_m_rad: expected joint stiffness" in capsys.readouterr().err
+    # a toolpath with neither a robot nor --models
+    plain = tmp_path / "plain.yaml"
+    plain.write_text((d / "path.yaml").read_text().replace("robot: robot.yaml\n", ""))
+    (tmp_path / "path.csv").write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg," + HEADER + "\n"
+                                       + "".join(f"0,-90,90,0,30,0,0.0,{y},0.0,2700,0.0005,0.006,0.006,down\n"
+                                                 for y in (0.0, 0.1)))
     assert main(["check", str(plain)]) == 2
     assert "robot: expected a robot" in capsys.readouterr().err

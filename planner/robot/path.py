@@ -197,9 +197,11 @@ def _continuous(robot: Robot, q, ok):
     lo, hi = robot.lower_rad[wide], robot.upper_rad[wide]
     for k, j in enumerate(wide):
         shifts = 2 * math.pi * np.arange(-2, 3)
-        excess = [np.sum(np.maximum(lo[k] - (un[:, k] + s), 0) + np.maximum(un[:, k] + s - hi[k], 0))
-                  for s in shifts]
-        un[:, k] += shifts[int(np.argmin(excess))]
+        # inside the range first, then nearest the middle of the range
+        mid = 0.5 * (lo[k] + hi[k])
+        cost = [1e6 * np.sum(np.maximum(lo[k] - (un[:, k] + s), 0) + np.maximum(un[:, k] + s - hi[k], 0))
+                + abs(np.mean(un[:, k]) + s - mid) for s in shifts]
+        un[:, k] += shifts[int(np.argmin(cost))]
     sub[:] = un
     out = q.copy()
     out[np.ix_(idx, wide)] = sub
