@@ -152,7 +152,7 @@ def tool_rotation(robot: Robot, q, reference) -> np.ndarray:
     return np.arctan2(_dot(_cross(ref, x), a), _dot(ref, x))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class IKSolutions:
     """All closed-form branches at ``n`` targets.
 
@@ -254,7 +254,7 @@ def joint_limit_distance(robot: Robot, q) -> np.ndarray:
     return np.minimum(q - robot.lower_rad, robot.upper_rad - q)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PathIK:
     """One branch followed along a path.
 
