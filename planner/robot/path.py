@@ -39,7 +39,7 @@ from oma.modal import ModalModel
 
 from .description import Robot, RobotError
 
-__all__ = ["PathJoints", "solve_path", "singularity_measure", "robot_point_models",
+__all__ = ["PathJoints", "solve_path", "singularity_measure", "lowest_mode_map", "read_cell", "robot_point_models",
            "POSE_RESOLUTION_DEG", "SINGULARITY_THRESHOLD", "CHARACTERISTIC_LENGTH_M"]
 
 #: Joint angles are rounded to this before the robot model is evaluated, deg. The lowest tool-tip
@@ -303,3 +303,51 @@ def read_cell(toolpath, robot_path=None, tool_model_path=None, toolpath_file=Non
                          "calibrate)", "none")
     tool_model = None if tool_model_path is None else read_modal_model(tool_model_path)
     return robot, tool_model
+
+
+def lowest_mode_map(robot: Robot, x_m, y_m, z_m: float, *, tool_axis=(0.0, 0.0, 1.0), feed=(0.0, 1.0, 0.0),
+                    rotation_deg: float = 0.0, branch: int | None = None, min_tip_fraction: float = 0.01):
+    """The lowest tool-tip mode over a horizontal grid of tool-tip positions (machine frame).
+
+    Parameters
+    ----------
+    robot : Robot
+        With joint stiffness.
+    x_m, y_m : array_like, shape (nx,), (ny,)
+        Grid, m; ``z_m`` its height, m.
+    tool_axis, feed : array_like, shape (3,)
+        Tool axis and feed direction (the reference of the rotation), machine frame.
+    rotation_deg : float
+        Rotation about the tool axis.
+    branch : int, optional
+        IK branch (default: the one valid at most grid points).
+    min_tip_fraction : float
+        A mode counts as a tool-tip mode when its tip compliance is at least this fraction of the
+        pose's largest.
+
+    Returns
+    -------
+    frequency_hz, stiffness_N_m : ndarray, shape (ny, nx)
+        Of the lowest tool-tip mode (NaN where no valid pose).
+    """
+    from .dynamics import robot_modes
+    from .ik import inverse_kinematics
+
+    xx, yy = np.meshgrid(np.asarray(x_m, float), np.asarray(y_m, float))
+    pts = np.column_stack([xx.ravel(), yy.ravel(), np.full(xx.size, float(z_m))])
+    sol = inverse_kinematics(robot, pts, np.asarray(tool_axis, float), math.radians(rotation_deg),
+                             np.asarray(feed, float))
+    valid = np.asarray(sol.valid)
+    b = int(np.argmax(valid.sum(axis=0))) if branch is None else int(branch)
+    ok = valid[:, b]
+    freq = np.full(xx.size, np.nan)
+    stiff = np.full(xx.size, np.nan)
+    if ok.any():
+        modes = robot_modes(robot, np.asarray(sol.q)[ok, b])
+        comp = modes.compliance_m_N
+        tip = comp >= min_tip_fraction * comp.max(axis=1, keepdims=True)
+        f = np.where(tip, modes.frequency_hz, np.inf)
+        r = np.argmin(f, axis=1)
+        freq[ok] = f[np.arange(r.size), r]
+        stiff[ok] = modes.stiffness_N_m[np.arange(r.size), r]
+    return freq.reshape(xx.shape), stiff.reshape(xx.shape)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plot_posture"]
+__all__ = ["plot_posture", "plot_mode_map"]
 
 
 def plot_posture(result, ax=None):
@@ -40,3 +40,29 @@ def plot_posture(result, ax=None):
     axes[0].set_ylabel("y (mm)")
     fig.colorbar(pts, ax=list(axes), label="stability margin (limit depth / planned depth)")
     return fig, axes
+
+
+def plot_mode_map(x_m, y_m, frequency_hz, *, path_xy_m=None, poses_xy_m=None, ax=None):
+    """Filled contours of the lowest tool-tip mode (Hz) over the x-y grid (mm), the path and the
+    identified poses on top. Returns fig, ax."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(6.4, 5.0), constrained_layout=True)
+    else:
+        fig = ax.figure
+    xs, ys = np.asarray(x_m) * 1e3, np.asarray(y_m) * 1e3
+    cs = ax.contourf(xs, ys, frequency_hz, levels=14, cmap="viridis")
+    fig.colorbar(cs, ax=ax, label="lowest tool-tip mode (Hz)")
+    if path_xy_m is not None:
+        p = np.asarray(path_xy_m) * 1e3
+        ax.plot(p[:, 0], p[:, 1], color="w", lw=2.0, label="toolpath")
+    if poses_xy_m is not None:
+        p = np.asarray(poses_xy_m) * 1e3
+        ax.scatter(p[:, 0], p[:, 1], marker="o", facecolors="none", edgecolors="r", s=50, label="identified poses")
+    ax.set_xlabel("x (mm, machine)")
+    ax.set_ylabel("y (mm, machine)")
+    ax.set_aspect("equal", adjustable="box")
+    ax.legend(loc="upper right", fontsize="small")
+    ax.set_title("calibrated robot: lowest tool-tip mode, tool axis +Z")
+    return fig, ax
