@@ -198,3 +198,18 @@ def test_cli_check_robot(cell, tmp_path, capsys):
                                                  for y in (0.0, 0.1)))
     assert main(["check", str(plain)]) == 2
     assert "robot: expected a robot" in capsys.readouterr().err
+
+
+def test_lowest_mode_map_is_the_robot_model_at_the_ik_pose(cell):
+    """One grid point of the map against ``robot_modal_model`` at the pose found by the check."""
+    from planner.robot.path import lowest_mode_map
+
+    _, robot, tp = cell
+    machine = tp.in_machine_frame()
+    x, y, z = machine.positions_m[4]
+    freq, stiff = lowest_mode_map(robot, [x, x + 0.1], [y], z, tool_axis=machine.tool_axis,
+                                  feed=machine.feed_directions()[4], branch=2)
+    res = check_toolpath(tp, robot=robot, pose_resolution_deg=0)
+    model = robot_modal_model(robot, np.radians(res.joints_deg[4]), min_tip_fraction=0.01)
+    assert freq.shape == (1, 2) and np.all(np.isfinite(freq))
+    assert freq[0, 0] == pytest.approx(model.natural_frequency_hz.min(), rel=1e-9)
