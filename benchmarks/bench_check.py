@@ -106,9 +106,10 @@ def ramps(path: Toolpath) -> Toolpath:
 def naive_point(poses, path: Toolpath, i: int):
     """The straightforward per-point check; returns (limit, sle, nearest stable grid speed)."""
     model = poses.at(path.joints_deg[i], out_of_span="clamp")
-    f = path.feed_directions()[i]
+    machine = path.in_machine_frame()  # the example's path is in the part frame; models in the machine's
+    f = machine.feed_directions()[i]
     cut = Cut(path.feed_per_tooth_m[i], path.radial_depth_m[i], str(path.milling[i]), f,
-              np.cross(path.tool_axis, f))
+              np.cross(machine.tool_axis, f))
     coef = path.material.cutting_coefficients
     op = predict_point(model, path.tool, cut, coef, spindle_rpm=path.spindle_rpm[i],
                        axial_depth_m=path.axial_depth_m[i])

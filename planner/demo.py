@@ -326,7 +326,7 @@ def _step_robot(example: Example, report: Report) -> None:
              f"(median over stations {100 * np.nanmedian(spread):.2g} %): "
              + ("at this spindle speed the stability limit is set by the pose-independent spindle/tool modes, so "
                 "no posture can raise it; " if spread[worst] < 1e-3 else "")
-             + f"the check after the posture: " + (", ".join(f"{v} {k}" for k, v in after.counts().items() if v)
+             + "the check after the posture: " + (", ".join(f"{v} {k}" for k, v in after.counts().items() if v)
                                                    or "no violations") + ".")
     fig, _ = posture.plot()
     sec.figure(report.save_figure(fig, "posture"), "Path (part frame) coloured by stability margin: toolpath's "

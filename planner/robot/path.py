@@ -44,8 +44,9 @@ __all__ = ["PathJoints", "solve_path", "singularity_measure", "lowest_mode_map",
 
 #: Joint angles are rounded to this before the robot model is evaluated, deg. The lowest tool-tip
 #: mode moves by about +-50 % over the workspace (DOMAIN.md), i.e. well under 1 % per degree of
-#: any joint: 0.05 deg (0.025 deg at most off) moves a mode by ~1e-4 of itself (measured in
-#: ``benchmarks/bench_check.py``, robot case), and cuts the distinct models of a dense path ~5x.
+#: any joint: 0.05 deg (0.025 deg at most off) changes the limit depth by < 1e-7 and the surface
+#: location error by < 3e-4 of itself on the example (``benchmarks/bench_check.py``, robot case),
+#: and cuts the distinct models of a dense path ~5x against 0.01 deg.
 POSE_RESOLUTION_DEG = 0.05
 #: Length scaling the Jacobian's translational rows, m (the order of the arm's links).
 CHARACTERISTIC_LENGTH_M = 1.0
