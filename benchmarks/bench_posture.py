@@ -4,9 +4,16 @@ Run from the repository root::
 
     MPLBACKEND=Agg .venv/bin/python benchmarks/bench_posture.py [--quick]
 
-The path: the example cell's path (part frame) resampled to 1 000 points, its deep stretch
-(15 mm) kept, on the example's truth robot (``truth/robot_truth.yaml``) with the tool modes;
-36 rotations (10 deg). Cases: the default (64 stations: inverse kinematics of every branch at
+Two cells, 1 000 points each, 36 rotations (10 deg):
+
+* *example*: the example cell's path (part frame) resampled to 1 000 points, its deep stretch
+  (15 mm) kept, on the example's truth robot (``truth/robot_truth.yaml``) with the tool modes.
+  There the stability limit is set by the pose-independent tool modes: the margin does not depend
+  on the rotation (the case measures the cost only);
+* *offset*: the KR 500 with DOMAIN.md's joint stiffness and a spindle 0.25 m off the flange axis
+  (the cell of ``tests/test_posture.py``), a 0.4 m straight path cut 12 mm deep at 2700 rpm, no
+  tool modes: the robot's modes limit the cut and the rotation matters.
+ Cases: the default (64 stations: inverse kinematics of every branch at
 64 x 36 states, the margin of the two candidate branches' feasible states by the check, the two
 dynamic programmes, the refinement, then the joints of all 1 000 points and the check before and
 after), and 200 stations. The brute-force reference: the smallest margin along the path at each
@@ -52,6 +59,30 @@ def resampled(base, n):
                    axial_depth_m=base.axial_depth_m[near], milling=base.milling[near])
 
 
+OFFSET_ROBOT = """\
+format: robomill-robot/1
+urdf: {urdf}
+base_link: base_link
+flange_link: tool0
+tool: {{tip_m: [0.0, 0.25, 0.40], axis: [0.0, 0.0, -1.0], mass_kg: 150.0, center_of_mass_m: [0.0, 0.12, 0.20],
+  inertia_kg_m2: [[4.0, 0, 0], [0, 4.0, 0], [0, 0, 1.5]]}}
+joints: {{stiffness_N_m_rad: [2.3e6, 8.6e6, 2.8e6, 3.0e6, 0.2e6, 0.9e6], damping_ratio: [0.05, 0.05, 0.05, 0.05, 0.05, 0.05]}}
+"""
+
+
+def offset_cell(base, n, directory):
+    """The offset-spindle cell: robot, and a straight 0.4 m path of ``n`` points (machine frame)."""
+    path = Path(directory) / "offset_robot.yaml"
+    path.write_text(OFFSET_ROBOT.format(urdf=EXAMPLE / "robot" / "kr500_r2800_2.urdf"))
+    y = np.linspace(-0.2, 0.2, n)
+    full = lambda a: np.full(n, a[0])  # noqa: E731
+    tp = replace(base, positions_m=np.column_stack([np.full(n, 1.2), y, np.full(n, 0.4)]), joints_deg=None,
+                 workpiece_origin_m=None, workpiece_rpy_deg=None, spindle_rpm=np.full(n, 2700.0),
+                 feed_per_tooth_m=full(base.feed_per_tooth_m), radial_depth_m=full(base.radial_depth_m),
+                 axial_depth_m=np.full(n, 0.012), milling=full(base.milling))
+    return read_robot(path), tp
+
+
 def timed(fn, repeats):
     wall, cpu, out = [], [], None
     for _ in range(repeats):
@@ -68,27 +99,29 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     repeats = 1 if args.quick else 3
     warnings.simplefilter("ignore", UserWarning)
-    robot = read_robot(EXAMPLE / "truth" / "robot_truth.yaml")
-    tool = read_modal_model(EXAMPLE / "models" / "tool_mode.yaml")
-    path = resampled(read_toolpath(EXAMPLE / "toolpath.yaml"), 1000)
+    import tempfile
+
+    example_path = read_toolpath(EXAMPLE / "toolpath.yaml")
+    tmp = tempfile.mkdtemp()
+    cells = {"example": (read_robot(EXAMPLE / "truth" / "robot_truth.yaml"), resampled(example_path, 1000),
+                         read_modal_model(EXAMPLE / "models" / "tool_mode.yaml")),
+             "offset": (*offset_cell(example_path, 1000, tmp), None)}
+    robot, path, tool = cells["example"]
     choose_posture(robot, resampled(path, 50), tool_model=tool, stations=8)  # warm-up (numba caches)
-    rows = []
-    for stations in (64,) if args.quick else (64, 200):
-        wall, cpu, res = timed(lambda: choose_posture(robot, path, tool_model=tool, stations=stations), repeats)
-        rows.append((stations, wall, cpu, res))
-    c0, t0 = time.process_time(), time.perf_counter()
-    sweep = constant_rotation_margins(robot, path, np.arange(-180.0, 180.0, 10.0), tool_model=tool)
-    brute_cpu, brute_wall = time.process_time() - c0, time.perf_counter() - t0
-    best = float(np.max(sweep))
-    print("stations | points x rotations | wall s | CPU s | min margin before | min margin after | "
-          "after / best constant | unreachable | margin evaluations")
-    print("--- | --- | --- | --- | --- | --- | --- | --- | ---")
-    for stations, wall, cpu, res in rows:
-        print(f"{stations} | {res.rotation_deg.size} x {res.rotations_deg.size} | {wall:.1f} | {cpu:.1f} | "
-              f"{res.min_margin_before:.4f} | {res.min_margin_after:.4f} | {res.min_margin_after / best:.4f} | "
-              f"{len(res.unreachable)} | {res.evaluations.get('margin_evaluations')}")
-    print(f"\nbrute force: 36 constant flange angles, best smallest margin {best:.4f} "
-          f"(worst feasible {np.min(sweep[np.isfinite(sweep)]):.4f}), {brute_wall:.1f} s wall, {brute_cpu:.1f} s CPU")
+    print("cell | stations | points x rotations | wall s | CPU s | min margin before | min margin after | "
+          "after / best constant | best / worst constant | unreachable | margin evaluations | brute force CPU s")
+    print("--- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | ---")
+    for cell, (robot, path, tool) in cells.items():
+        c0 = time.process_time()
+        sweep = constant_rotation_margins(robot, path, np.arange(-180.0, 180.0, 10.0), tool_model=tool)
+        brute_cpu = time.process_time() - c0
+        best, worst = float(np.max(sweep)), float(np.min(sweep[np.isfinite(sweep)]))
+        for stations in (64,) if args.quick else (64, 200):
+            wall, cpu, res = timed(lambda: choose_posture(robot, path, tool_model=tool, stations=stations), repeats)
+            print(f"{cell} | {stations} | {res.rotation_deg.size} x {res.rotations_deg.size} | {wall:.1f} | {cpu:.1f} | "
+                  f"{res.min_margin_before:.4f} | {res.min_margin_after:.4f} | {res.min_margin_after / best:.4f} | "
+                  f"{best / worst:.3f} | {len(res.unreachable)} | {res.evaluations.get('margin_evaluations')} | "
+                  f"{brute_cpu:.1f}")
     return 0
 
 
