@@ -88,10 +88,14 @@ from stability.setup import Limits
 from .poses import model_list
 from .toolpath import Toolpath
 
-__all__ = ["ToolpathCheck", "check_toolpath", "VIOLATION_KINDS", "METHODS"]
+__all__ = ["ToolpathCheck", "check_toolpath", "VIOLATION_KINDS", "MODEL_KINDS", "ROBOT_KINDS", "METHODS"]
 
 #: Violation kinds (cli.md), in the order they are listed for one point.
-VIOLATION_KINDS = ("chatter", "surface_error", "force", "power", "torque", "pose_out_of_range")
+VIOLATION_KINDS = ("unreachable", "joint_limit", "singularity", "chatter", "surface_error", "force", "power",
+                   "torque", "pose_out_of_range")
+#: The kinds a check with identified models can flag, and those of a check with a robot (cli.md).
+MODEL_KINDS = ("chatter", "surface_error", "force", "power", "torque", "pose_out_of_range")
+ROBOT_KINDS = ("unreachable", "joint_limit", "singularity", "chatter", "surface_error", "force", "power", "torque")
 METHODS = ("zoa", "sdm")
 
 _TWO_PI = 2.0 * math.pi
@@ -145,7 +149,10 @@ class ToolpathCheck:
         chatter test (NaN if none in the range); NaN elsewhere.
     violations : tuple of dict
         ``{index, kind, value, limit}`` (cli.md) in point order, kinds in :data:`VIOLATION_KINDS`
-        order. ``chatter``: planned depth and allowed depth (margin x limit), m, plus
+        order. With a robot (see :mod:`planner.robot.path`): ``unreachable`` (distance of the
+        target from the nearest reachable one is not known: value 1, limit 0), ``joint_limit``
+        (the joint furthest outside its range: how far, deg, limit 0), ``singularity`` (the
+        singularity measure and its threshold). ``chatter``: planned depth and allowed depth (margin x limit), m, plus
         ``depth_limit_m`` and ``nearest_stable_rpm``; ``surface_error``: ``|SLE|`` and the allowed
         value, m; ``force``: N; ``power``: W; ``torque``: mean torque, N m; ``pose_out_of_range``: distance to the identified span
         and the tolerance exceeded (along the span or across it), degrees, plus ``beyond_range``.
@@ -160,6 +167,11 @@ class ToolpathCheck:
         ``forced_groups``.
     notes : tuple of str
         What the user should know about how the result was obtained.
+    kinds : tuple of str
+        The violation kinds this check could flag (:data:`MODEL_KINDS` or :data:`ROBOT_KINDS`).
+    joints_deg : ndarray, shape (n_points, 6), or None
+        With a robot: the joint angles of each point (given or from inverse kinematics), deg; NaN
+        where unreachable.
     """
 
     method: str
@@ -180,6 +192,8 @@ class ToolpathCheck:
     allowed_fraction: float = 1.0
     evaluations: dict = field(default_factory=dict)
     notes: tuple = ()
+    kinds: tuple = MODEL_KINDS
+    joints_deg: np.ndarray | None = None
 
     @property
     def n_points(self) -> int:
@@ -192,7 +206,7 @@ class ToolpathCheck:
 
     def counts(self) -> dict:
         """Number of violations of each kind."""
-        out = {k: 0 for k in VIOLATION_KINDS}
+        out = {k: 0 for k in self.kinds}
         for v in self.violations:
             out[v["kind"]] += 1
         return out
@@ -228,6 +242,8 @@ class ToolpathCheck:
                          "axial_depth_m"):
                 out[name] = [_json_float(x) for x in getattr(self, name)]
             out["in_span"] = [bool(x) for x in self.in_span]
+            if self.joints_deg is not None:
+                out["joints_deg"] = [[_json_float(x) for x in row] for row in self.joints_deg]
         return out
 
     def plot(self, ax=None, **kwargs):
@@ -607,18 +623,21 @@ def _surface_errors(tool, models, frames, unit_h, fg_model, fg_frame, fg_eng, fg
     return out
 
 
-def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: Literal["zoa", "sdm"] = "zoa",
-                   limits: Limits | None = None, progress: bool = False, pose_resolution_deg: float = 0.01,
-                   direction_resolution_deg: float = 0.01, n_freq: int = 10_000) -> ToolpathCheck:
+def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = None, *,
+                   method: Literal["zoa", "sdm"] = "zoa", limits: Limits | None = None, progress: bool = False,
+                   pose_resolution_deg: float | None = None, direction_resolution_deg: float = 0.01,
+                   n_freq: int = 10_000, robot=None, tool_model: ModalModel | None = None,
+                   singularity_threshold: float | None = None) -> ToolpathCheck:
     """Check every point of a toolpath for chatter, surface error, force, power and pose range.
 
     Parameters
     ----------
     toolpath : Toolpath
         The planned path (positions, poses, speeds, engagements), SI units.
-    models : sequence of ModalModel
+    models : sequence of ModalModel, optional
         Modal models at identified poses (each with ``joints_deg``), interpolated along the path
-        (:class:`planner.poses.PoseModels`); or a single model used at every point.
+        (:class:`planner.poses.PoseModels`); or a single model used at every point. Not with
+        ``robot``.
     method : {'zoa', 'sdm'}
         Stability limit by the zero-order approximation or by semi-discretization (slow).
     limits : Limits, optional
@@ -627,13 +646,23 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
         ``spindle_power_W``, ``surface_location_error_m`` (on ``|SLE|``).
     progress : bool
         Show a progress bar (tqdm, on standard error).
-    pose_resolution_deg : float
+    pose_resolution_deg : float, optional
         Joint angles are rounded to this before the model is evaluated (0: exact), degrees.
+        Default 0.01 with models, :data:`planner.robot.path.POSE_RESOLUTION_DEG` with a robot.
     direction_resolution_deg : float
         Components of the feed direction and tool axis are rounded to this many radians' worth
         (0: exact), degrees.
     n_freq : int
         Chatter-frequency grid of the ZOA (as :func:`stability.zoa.default_chatter_frequencies`).
+    robot : planner.robot.Robot, optional
+        A calibrated robot (with joint stiffness) instead of ``models``: the joints of every point
+        from the path (given, or by inverse kinematics, :func:`planner.robot.path.solve_path`) and
+        the robot's modal model at each (:func:`planner.robot.robot_modes`); adds the kinds
+        ``unreachable``, ``joint_limit`` and ``singularity``.
+    tool_model : ModalModel, optional
+        With ``robot``: pose-independent spindle/tool modes, in series with the robot's.
+    singularity_threshold : float, optional
+        With ``robot``: see :func:`planner.robot.path.solve_path`.
 
     Returns
     -------
@@ -654,7 +683,19 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, found {method!r}")
-    models = model_list(models)
+    if (models is None) == (robot is None):
+        raise ValueError("give either models or a robot")
+    toolpath = toolpath.in_machine_frame()
+    if robot is None:
+        models = model_list(models)
+        if not toolpath.has_joints:
+            raise ValueError("the toolpath has no joint angles at some points: check it with a robot")
+        if pose_resolution_deg is None:
+            pose_resolution_deg = 0.01
+    elif pose_resolution_deg is None:
+        from .robot.path import POSE_RESOLUTION_DEG
+
+        pose_resolution_deg = POSE_RESOLUTION_DEG
     coefficients = toolpath.material.cutting_coefficients
     if coefficients is None:
         raise ValueError("toolpath.material has no cutting coefficients: the forces cannot be predicted")
@@ -671,7 +712,15 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
     counts = {"points": toolpath.n_points, "models": 0, "frames": 0, "structure_groups": 0, "limits": 0,
               "nearest_stable": 0, "force_shapes": 0, "forced_groups": 0}
 
-    pm = _pose_models(toolpath, models, float(pose_resolution_deg), notes)
+    extra, joints_used = {}, None
+    if robot is None:
+        pm = _pose_models(toolpath, models, float(pose_resolution_deg), notes)
+    else:
+        from .robot.path import robot_point_models
+
+        pm, extra, joints_used = robot_point_models(robot, toolpath, tool_model=tool_model,
+                                                    resolution_deg=float(pose_resolution_deg), notes=notes,
+                                                    singularity_threshold=singularity_threshold, counts=counts)
     f, a = _frames(toolpath, math.radians(direction_resolution_deg))
     frame_first, frame_id = _groups(*f.T, *a.T)
     fr = f[frame_first]
@@ -731,9 +780,16 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
     power = mean_torque * _TWO_PI * rpm / 60.0
 
     # ---- violations
+    if "unreachable" in extra:  # no pose: no robot model, no stability or surface error there
+        lost = extra["unreachable"][0]
+        depth_limit, chatter_freq, sle = (np.where(lost, np.nan, a) for a in (depth_limit, chatter_freq, sle))
+        chatter = chatter & ~lost
+        nearest = np.where(lost, np.nan, nearest)
     with np.errstate(divide="ignore", invalid="ignore"):
         margin = depth_limit / depth
     found = {k: np.zeros(toolpath.n_points, dtype=bool) for k in VIOLATION_KINDS}
+    for kind, (mask, _, _) in extra.items():
+        found[kind] = mask
     found["chatter"] = chatter
     if limits.surface_location_error_m is not None:
         found["surface_error"] = np.abs(sle) > limits.surface_location_error_m
@@ -747,6 +803,10 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
     violations = []
     for i in np.flatnonzero(np.any(np.stack(list(found.values())), axis=0)):
         i = int(i)
+        for kind in ("unreachable", "joint_limit", "singularity"):
+            if found[kind][i]:
+                violations.append({"index": i, "kind": kind, "value": float(extra[kind][1][i]),
+                                   "limit": float(extra[kind][2])})
         if found["chatter"][i]:
             violations.append({"index": i, "kind": "chatter", "value": float(depth[i]),
                                "limit": float(fraction * depth_limit[i]), "depth_limit_m": float(depth_limit[i]),
@@ -767,7 +827,7 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
             violations.append({"index": i, "kind": "pose_out_of_range", "value": float(pm.distance_deg[i]),
                                "limit": float(pm.hull_tol_deg if pm.beyond[i] else pm.span_tol_deg),
                                "beyond_range": bool(pm.beyond[i])})
-    if pose_resolution_deg > 0 and len(models) > 1:
+    if pose_resolution_deg > 0 and (robot is not None or len(models) > 1):
         notes.append(f"models evaluated at the poses rounded to {pose_resolution_deg:g} deg")
     if direction_resolution_deg > 0:
         notes.append(f"cut frames evaluated with directions rounded to {direction_resolution_deg:g} deg")
@@ -777,5 +837,6 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel], *, method: 
         surface_location_error_m=_ro(sle), peak_force_N=_ro(peak), power_W=_ro(power), mean_torque_N_m=_ro(mean_torque),
         in_span=_ro(pm.in_span, bool),
         nearest_stable_rpm=_ro(nearest), violations=tuple(violations), limits=limits, allowed_fraction=fraction,
-        evaluations=counts, notes=tuple(notes),
+        evaluations=counts, notes=tuple(notes), kinds=MODEL_KINDS if robot is None else ROBOT_KINDS,
+        joints_deg=None if joints_used is None else _ro(joints_used),
     )

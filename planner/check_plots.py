@@ -17,7 +17,11 @@ VIOLATION_STYLE = {
     "surface_error": ("s", "tab:orange", 40, "surface error"),
     "force": ("^", "tab:purple", 40, "force"),
     "power": ("v", "tab:brown", 40, "power"),
+    "torque": ("D", "tab:olive", 34, "torque"),
     "pose_out_of_range": ("o", "0.35", 70, "pose out of range"),
+    "unreachable": ("X", "k", 50, "unreachable"),
+    "joint_limit": ("P", "tab:blue", 46, "joint limit"),
+    "singularity": ("*", "tab:pink", 70, "singularity"),
 }
 _MM = 1e3
 

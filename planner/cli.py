@@ -126,8 +126,17 @@ def _cmd_check(args) -> int:
     from planner.toolpath_io import read_toolpath
 
     toolpath = read_toolpath(args.toolpath)
-    models = [read_modal_model(path) for path in args.models]
-    result = check_toolpath(toolpath, models, method=args.method, progress=not args.json)
+    if args.models and args.robot:
+        raise UsageError("--robot", "either --models or --robot", "both")
+    if args.models:
+        models = [read_modal_model(path) for path in args.models]
+        result = check_toolpath(toolpath, models, method=args.method, progress=not args.json)
+    else:
+        from planner.robot.path import read_cell
+
+        robot, tool_model = read_cell(toolpath, args.robot, args.tool_model, args.toolpath)
+        result = check_toolpath(toolpath, robot=robot, tool_model=tool_model, method=args.method,
+                                progress=not args.json)
     if args.output:
         fig, _ = result.plot()
         save_figure(fig, args.output)
@@ -242,7 +251,7 @@ def _cmd_demo(args) -> int:
 
 #: Command groups that live in their own sub-package; each module has ``add_parsers(sub)``, which
 #: adds its subcommands (with ``handler`` defaults) to the ``robomill`` subparsers.
-COMMAND_GROUPS: tuple[str, ...] = ("planner.robot.cli",)
+COMMAND_GROUPS: tuple[str, ...] = ("planner.robot.cli", "planner.robot.posture_cli")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -277,7 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="check a planned toolpath point by point")
     p.add_argument("toolpath")
-    p.add_argument("--models", required=True, nargs="+", help="modal models at one or more robot poses")
+    p.add_argument("--models", nargs="+", help="modal models at one or more robot poses")
+    p.add_argument("--robot", default=None, help="a calibrated robomill-robot/1 file instead of --models "
+                   "(default: the toolpath's robot)")
+    p.add_argument("--tool-model", default=None, help="with --robot: spindle/tool modes, in series")
     p.add_argument("--method", choices=["zoa", "sdm"], default="zoa")
     p.add_argument("-o", "--output", default=None, help="figure of the path coloured by stability margin")
     add_json(p)

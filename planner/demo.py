@@ -268,6 +268,91 @@ def _step_check(example: Example, report: Report) -> None:
                                "first_chatter": chatter[0] if chatter else None}
 
 
+#: Modes above this are the spindle/tool's (pose-independent, given separately): left out of the
+#: pose models before the robot is calibrated on them.
+_ROBOT_BAND_HZ = 200.0
+
+
+def _step_robot(example: Example, report: Report) -> None:
+    """The robot as the model: calibrate it on the six identified poses, check the path with it,
+    choose the posture, and map the lowest tool-tip mode over the working region."""
+    from oma.modal import ModalModel
+    from planner.check import check_toolpath
+    from planner.robot import read_robot
+    from planner.robot.calibrate import calibrate
+    from planner.robot.path import lowest_mode_map
+    from planner.robot.posture import choose_posture
+    from planner.robot.posture_plots import plot_mode_map
+
+    robot_file = example.toolpath.robot_file
+    robot = read_robot(robot_file)
+    robot_only = []
+    for m in example.poses:
+        keep = m.natural_frequency_hz < _ROBOT_BAND_HZ
+        robot_only.append(ModalModel(m.natural_frequency_hz[keep], m.damping_ratio[keep], m.stiffness_N_m[keep],
+                                     m.directions[keep], joints_deg=m.joints_deg))
+    names = [f"pose_{i + 1}" for i in range(len(robot_only))]
+    cal = calibrate(robot, robot_only, names=names)
+    robot = cal.robot
+    sec = report.section("The robot as the model")
+    sec.text(f"The cell's robot ({robot.name}) calibrated on the {len(robot_only)} identified poses (their modes "
+             f"below {_ROBOT_BAND_HZ:g} Hz; the spindle/tool modes are pose-independent and added in series).")
+    sec.table(["joint", "stiffness N m/rad", "identifiable"],
+              [[j + 1, float(k), bool(i)] for j, (k, i) in enumerate(zip(robot.joint_stiffness_N_m_rad, cal.identifiable))])
+    loo = [float(v["frequency_error"]) for v in cal.leave_one_out]
+    sec.text(f"Fit error per pose (relative): {', '.join(f'{e:.3f}' for e in cal.fit_error)}; leave-one-pose-out "
+             f"frequency error: median {np.median(loo):.3f}, max {np.max(loo):.3f}.")
+    for w in cal.warnings:
+        sec.text(f"<span class='warn'>{w}</span>")
+
+    before_models = check_toolpath(example.toolpath, example.poses, progress=False)
+    result = check_toolpath(example.toolpath, robot=robot, tool_model=example.tool_mode, progress=False)
+    counts = result.counts()
+    sec.text(f"Toolpath check with the calibrated robot ({result.n_points} points, joints as given in the "
+             f"toolpath): " + (", ".join(f"{v} {k}" for k, v in counts.items() if v) or "no violations")
+             + f" (with the identified poses interpolated: {before_models.counts()['pose_out_of_range']} "
+             "pose_out_of_range, which the robot model does not need).")
+    posture = choose_posture(robot, example.toolpath, tool_model=example.tool_mode)
+    sec.text(f"Posture (rotation about the tool axis, one IK branch, smooth, within limits and away from "
+             f"singularities): smallest stability margin {posture.min_margin_before:.3f} before, "
+             f"{posture.min_margin_after:.3f} after; flange angle {np.nanmin(posture.flange_angle_deg):.0f} to "
+             f"{np.nanmax(posture.flange_angle_deg):.0f} deg" + (f"; unreachable: {len(posture.unreachable)} points"
+                                                                   if posture.unreachable else "") + ".")
+    after = check_toolpath(posture.toolpath, robot=robot, tool_model=example.tool_mode, progress=False)
+    sm = np.where(np.isfinite(posture.station_margin), posture.station_margin, np.nan)
+    spread = np.nanmax(sm, axis=1) / np.nanmin(sm, axis=1) - 1.0  # per station, over the feasible rotations
+    worst = int(np.nanargmin(np.nanmin(sm, axis=1)))
+    sec.text(f"At the worst station the margin changes by {100 * spread[worst]:.2g} % over the feasible rotations "
+             f"(median over stations {100 * np.nanmedian(spread):.2g} %): "
+             + ("at this spindle speed the stability limit is set by the pose-independent spindle/tool modes, so "
+                "no posture can raise it; " if spread[worst] < 1e-3 else "")
+             + "the check after the posture: " + (", ".join(f"{v} {k}" for k, v in after.counts().items() if v)
+                                                   or "no violations") + ".")
+    fig, _ = posture.plot()
+    sec.figure(report.save_figure(fig, "posture"), "Path (part frame) coloured by stability margin: toolpath's "
+               "rotation (left) and after the posture choice (right)")
+    machine = example.toolpath.in_machine_frame()
+    xs = np.linspace(0.9, 1.9, 41)
+    ys = np.linspace(-0.6, 0.6, 49)
+    z = float(np.mean(machine.positions_m[:, 2]))
+    freq, _ = lowest_mode_map(robot, xs, ys, z, tool_axis=np.asarray(machine.tool_axis, float), feed=(0.0, 1.0, 0.0))
+    from planner.robot import forward_kinematics
+
+    poses_xy = forward_kinematics(robot, np.radians([m.joints_deg for m in example.poses]))[:, :2, 3]
+    fig, _ = plot_mode_map(xs, ys, freq, path_xy_m=machine.positions_m[:, :2], poses_xy_m=poses_xy)
+    sec.figure(report.save_figure(fig, "mode_map"), f"Lowest tool-tip mode of the calibrated robot at z = {z:.2f} m "
+               "(tool axis +Z, flange x along +Y), the toolpath and the identified poses")
+    finite = freq[np.isfinite(freq)]
+    report.summary["robot"] = {
+        "joint_stiffness_N_m_rad": robot.joint_stiffness_N_m_rad.tolist(), "identifiable": cal.identifiable.tolist(),
+        "leave_one_out_frequency_error": loo, "check_counts": counts,
+        "pose_out_of_range_with_models": before_models.counts()["pose_out_of_range"],
+        "min_margin_before": posture.min_margin_before, "min_margin_after": posture.min_margin_after,
+        "check_after_posture_counts": after.counts(), "unreachable": list(posture.unreachable),
+        "lowest_mode_hz_range": [float(finite.min()), float(finite.max())] if finite.size else None,
+    }
+
+
 def run_demo(output: Path, *, example_dir: Path = EXAMPLE_DIR, progress: bool = True) -> dict:
     """Run every step on the example and write ``report.html`` and ``summary.json`` under ``output``.
 
@@ -276,7 +361,7 @@ def run_demo(output: Path, *, example_dir: Path = EXAMPLE_DIR, progress: bool = 
     t0 = time.perf_counter()
     example = load_example(example_dir)
     report = Report("robomill demo: KR500 milling acetal (simulated example cell)", output)
-    steps = [_step_records, _step_identify, _step_shortcuts, _step_lobes, _step_plan, _step_check]
+    steps = [_step_records, _step_identify, _step_shortcuts, _step_lobes, _step_plan, _step_check, _step_robot]
     for step in steps:
         log.info("demo: %s", step.__name__)
         step(example, report)

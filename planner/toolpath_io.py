@@ -11,6 +11,15 @@
 radial_depth_m,axial_depth_m,milling`` (any order), one row per point. The tool axis "may also be
 a column" (formats.md): robomill's column names for it are ``tool_axis_x,tool_axis_y,tool_axis_z``
 (one unit vector per point), used instead of the YAML ``tool_axis`` (giving both is an error).
+
+With a robot (formats.md "Toolpath with a robot")::
+
+    robot: robot.yaml                      # a robomill-robot/1 file, relative to this file
+    workpiece_frame: {origin_m: [1.6, 0, 0.4], rpy_deg: [0, 0, 90]}   # optional
+
+the joint columns may be left out (or left empty, ``nan``, on the rows where inverse kinematics is
+to find them: all six of a row or none), positions and tool axis are in the workpiece frame, and
+the optional column ``tool_rotation_deg`` fixes the rotation about the tool axis (``nan``: free).
 """
 
 from __future__ import annotations
@@ -28,7 +37,7 @@ from stability.setup import Limits
 
 from .toolpath import Toolpath
 
-__all__ = ["read_toolpath", "write_toolpath", "FORMAT", "POINT_COLUMNS", "TOOL_AXIS_COLUMNS"]
+__all__ = ["read_toolpath", "write_toolpath", "FORMAT", "POINT_COLUMNS", "TOOL_AXIS_COLUMNS", "ROTATION_COLUMN"]
 
 FORMAT = "robomill-toolpath/1"
 POSITION_COLUMNS = ("x_m", "y_m", "z_m")
@@ -38,6 +47,8 @@ POINT_COLUMNS = POSITION_COLUMNS + JOINT_COLUMNS + (
     "spindle_rpm", "feed_per_tooth_m", "radial_depth_m", "axial_depth_m", "milling")
 #: Optional per-point tool axis columns (robomill's names; formats.md leaves them open).
 TOOL_AXIS_COLUMNS = ("tool_axis_x", "tool_axis_y", "tool_axis_z")
+#: Optional column with a robot: the rotation about the tool axis, deg (formats.md).
+ROTATION_COLUMN = "tool_rotation_deg"
 _POSITIVE_COLUMNS = ("spindle_rpm", "feed_per_tooth_m", "radial_depth_m", "axial_depth_m")
 
 
@@ -76,6 +87,19 @@ def read_toolpath(path) -> Toolpath:
     axis_yaml = root.direction("tool_axis", required=False)
     limits_node = root.mapping_at("limits")
     limits = Limits(**parse_limits(limits_node)) if limits_node is not None else Limits()
+    robot_file = root.text("robot", required=False)
+    if robot_file is not None:
+        resolved = Path(yaml_file).parent / robot_file
+        if not robot_file or not resolved.is_file():
+            root.fail("robot", "a robomill-robot/1 file (path relative to the toolpath file)",
+                      describe(robot_file) + " (no such file)")
+        robot_file = os.fspath(resolved)
+    origin = rpy = None
+    frame = root.mapping_at("workpiece_frame")
+    if frame is not None:
+        origin = frame.vector("origin_m", 3)
+        rpy = frame.vector("rpy_deg", 3, required=False, default=[0.0, 0.0, 0.0])
+        frame.done()
     points = root.text("points", required=True)
     if not points or Path(points).name != points or points in (".", "..") or not points.lower().endswith(".csv"):
         root.fail("points", "a .csv file name in the directory of the YAML file", describe(points))
@@ -84,16 +108,43 @@ def read_toolpath(path) -> Toolpath:
     csv_path = Path(yaml_file).parent / points
     csv_file = os.fspath(csv_path)
     table = read_csv_table(csv_path, error=ToolpathError, missing="the points file named in points",
-                           text_columns=("milling",), allowed=POINT_COLUMNS + TOOL_AXIS_COLUMNS)
+                           text_columns=("milling",),
+                           allowed=POINT_COLUMNS + TOOL_AXIS_COLUMNS + (ROTATION_COLUMN,))
+    has_joints = [c in table for c in JOINT_COLUMNS]
+    if robot_file is None and ROTATION_COLUMN in table:
+        raise ToolpathError(csv_file, f"column {ROTATION_COLUMN}", "a robot (the key robot in the YAML file) "
+                            "for a rotation about the tool axis", "no robot")
     for name in POINT_COLUMNS:
+        if robot_file is not None and name in JOINT_COLUMNS and not any(has_joints):
+            continue
         if name not in table:
             raise ToolpathError(csv_file, f"column {name}", f"a column {name}", "no such column")
     n = table["x_m"].size
     if n < 2:
         raise ToolpathError(csv_file, "rows", "at least two points (a feed direction needs two)",
                             f"{n} point{'s' if n != 1 else ''}")
+    joints = None
+    if any(has_joints):
+        joints = np.column_stack([table[c] for c in JOINT_COLUMNS])
+        given = np.isfinite(joints)
+        bad = np.flatnonzero(np.any(given, axis=1) & ~np.all(given, axis=1))
+        if robot_file is None:
+            bad = np.flatnonzero(~np.all(given, axis=1))
+        if bad.size:
+            j = int(np.flatnonzero(~given[bad[0]])[0])
+            raise ToolpathError(csv_file, f"row {bad[0] + 1}, column {JOINT_COLUMNS[j]}",
+                                "a finite number" + (" (or all six joints of the row empty/nan: found by "
+                                                     "inverse kinematics)" if robot_file else ""),
+                                repr(float(joints[bad[0], j])))
+    rotation = None
+    if ROTATION_COLUMN in table:
+        rotation = table[ROTATION_COLUMN]
+        bad = np.flatnonzero(np.isinf(rotation))
+        if bad.size:
+            raise ToolpathError(csv_file, f"row {bad[0] + 1}, column {ROTATION_COLUMN}",
+                                "a finite angle in degrees (or nan: free)", repr(float(rotation[bad[0]])))
     for name in POINT_COLUMNS + TOOL_AXIS_COLUMNS:
-        if name == "milling" or name not in table:
+        if name == "milling" or name not in table or name in JOINT_COLUMNS:
             continue
         col = table[name]
         bad = np.flatnonzero(~np.isfinite(col))
@@ -143,10 +194,11 @@ def read_toolpath(path) -> Toolpath:
 
     return Toolpath(
         tool=tool, material=material, tool_axis=axis, positions_m=positions,
-        joints_deg=np.column_stack([table[c] for c in JOINT_COLUMNS]),
+        joints_deg=joints,
         spindle_rpm=table["spindle_rpm"], feed_per_tooth_m=table["feed_per_tooth_m"],
         radial_depth_m=table["radial_depth_m"], axial_depth_m=table["axial_depth_m"],
-        milling=milling, limits=limits, points_file=points,
+        milling=milling, limits=limits, points_file=points, robot_file=robot_file,
+        workpiece_origin_m=origin, workpiece_rpy_deg=rpy, tool_rotation_deg=rotation,
     )
 
 
@@ -188,13 +240,25 @@ def write_toolpath(toolpath: Toolpath, path) -> Path:
     cols: dict[str, np.ndarray] = {}
     for i, c in enumerate(POSITION_COLUMNS):
         cols[c] = toolpath.positions_m[:, i]
-    for i, c in enumerate(JOINT_COLUMNS):
-        cols[c] = toolpath.joints_deg[:, i]
+    if toolpath.joints_deg is not None:
+        for i, c in enumerate(JOINT_COLUMNS):
+            cols[c] = toolpath.joints_deg[:, i]
     for c in ("spindle_rpm", "feed_per_tooth_m", "radial_depth_m", "axial_depth_m"):
         cols[c] = getattr(toolpath, c)
     cols["milling"] = np.asarray(toolpath.milling, dtype=str)
+    if toolpath.tool_rotation_deg is not None:
+        cols[ROTATION_COLUMN] = toolpath.tool_rotation_deg
     doc: dict = {"format": FORMAT, "tool": dump_tool(toolpath.tool),
                  "material": dump_material(toolpath.material)}
+    if toolpath.robot_file is not None:
+        robot = Path(os.fspath(toolpath.robot_file))
+        try:
+            doc["robot"] = Path(os.path.relpath(robot.resolve(), target.parent.resolve())).as_posix()
+        except ValueError:  # another drive (Windows)
+            doc["robot"] = os.fspath(robot.resolve())
+    if toolpath.workpiece_origin_m is not None:
+        doc["workpiece_frame"] = {"origin_m": [float(x) for x in toolpath.workpiece_origin_m],
+                                  "rpy_deg": [float(x) for x in toolpath.workpiece_rpy_deg]}
     if axis.ndim == 2:
         for i, c in enumerate(TOOL_AXIS_COLUMNS):
             cols[c] = axis[:, i]

@@ -377,7 +377,7 @@ def test_nearest_stable_speed_respects_the_speed_range():
 # ------------------------------------------------------------------------------- poses and caching
 def test_example_points_beyond_the_identified_poses_are_flagged(example):
     toolpath, models, result = example
-    s = (toolpath.positions_m[:, 1] + 0.15) / 0.3  # the path parameter of make_example.py
+    s = (toolpath.positions_m[:, 0] + 0.15) / 0.3  # the path parameter of make_example.py (part frame x)
     beyond = (s < 0) | (s > 1)
     assert np.array_equal(result.flagged("pose_out_of_range"), beyond)
     assert np.array_equal(result.in_span, ~beyond)
@@ -397,7 +397,9 @@ def test_out_of_span_points_use_the_model_at_the_nearest_span_point(example):
         assert not result.in_span[i]
         joints = np.round(toolpath.joints_deg[i] / 0.01) * 0.01  # the check's pose rounding
         model = poses.at(joints, out_of_span="clamp")
-        op = predict_point(model, toolpath.tool, cut_at(toolpath, i), toolpath.material.cutting_coefficients,
+        # the check works in the machine frame (the example's path is in the part frame)
+        op = predict_point(model, toolpath.tool, cut_at(toolpath.in_machine_frame(), i),
+                           toolpath.material.cutting_coefficients,
                            spindle_rpm=toolpath.spindle_rpm[i], axial_depth_m=toolpath.axial_depth_m[i])
         assert result.depth_limit_m[i] == pytest.approx(op.depth_limit_m, rel=LIMIT_RTOL)
         assert result.surface_location_error_m[i] == pytest.approx(op.surface_location_error_m, rel=SLE_RTOL)
@@ -486,7 +488,7 @@ def test_plot_colours_the_path_by_margin_and_marks_violations(example):
     try:
         labels = ax.get_legend_handles_labels()[1]
         counts = result.counts()
-        assert sorted(labels) == sorted(f"{VIOLATION_STYLE[k][3]} ({counts[k]})" for k in VIOLATION_KINDS if counts[k])
+        assert sorted(labels) == sorted(f"{VIOLATION_STYLE[k][3]} ({counts[k]})" for k in VIOLATION_KINDS if counts.get(k))
         margin_points = ax.collections[0]
         assert len(margin_points.get_offsets()) == result.n_points
         colours = margin_points.get_array()

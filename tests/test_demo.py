@@ -26,3 +26,11 @@ def test_demo_runs_the_whole_job_and_writes_its_report(tmp_path):
     assert plan["predicted"]["power_W"] <= 8000 * (1 + 1e-6)
     assert on_disk["check"]["points"] == 240
     assert (tmp_path / "out" / "figures").is_dir()
+    # the robot step: calibrated on the poses, the path checked with it (no pose_out_of_range, which
+    # the interpolated pose models flag beyond the identified span), every point reachable, and
+    # the posture never lowers the smallest margin
+    robot = on_disk["robot"]
+    assert robot["pose_out_of_range_with_models"] > 0 and "pose_out_of_range" not in robot["check_counts"]
+    assert robot["check_counts"]["unreachable"] == 0 and robot["unreachable"] == []
+    assert robot["min_margin_after"] >= robot["min_margin_before"] * (1 - 1e-9)
+    assert max(robot["leave_one_out_frequency_error"]) < 0.05

@@ -453,16 +453,19 @@ def test_example_poses_hold_the_tool_modes_constant_and_flag_the_path_beyond_the
 
     models = [read_modal_model(p) for p in sorted((EXAMPLE / "poses").glob("pose_*.yaml"))]
     pm = PoseModels.fit(models)
-    assert pm.n_modes == 5 and pm.span_dimension == 1
+    assert pm.n_modes == 6 and pm.span_dimension == 1  # four robot modes (make_example.py) + two tool modes
     path = read_toolpath(EXAMPLE / "toolpath.yaml")
     ev = pm.evaluate(path.joints_deg)
     # the spindle/tool modes (720, 735 Hz) are the same at every pose: the interpolant's
     # polynomial part reproduces constants exactly
-    np.testing.assert_allclose(ev.natural_frequency_hz[:, 3:], np.tile([720.0, 735.0], (path.n_points, 1)),
+    np.testing.assert_allclose(ev.natural_frequency_hz[:, 4:], np.tile([720.0, 735.0], (path.n_points, 1)),
                                rtol=1e-12)
-    # the path's joint 1 runs monotonically from before the first pose (78 deg) to past the last (98)
+    # the path's joint 1 runs monotonically (the tip moves along +Y in front of the base) from before
+    # the first pose to past the last
     q1 = path.joints_deg[:, 0]
-    inside = (q1 >= 78.0 - 1e-9) & (q1 <= 98.0 + 1e-9)
+    first, last = models[0].joints_deg[0], models[-1].joints_deg[0]
+    assert np.all(np.diff(q1) < 0) and first > last
+    inside = (q1 <= first + 1e-9) & (q1 >= last - 1e-9)
     np.testing.assert_array_equal(ev.in_span, inside)
 
 

@@ -13,8 +13,25 @@ Written files (relative to this directory):
 - ``truth/robot_at_cut.yaml``: the modal model the records were simulated with;
 - ``models/tool_mode.yaml``: the spindle/tool mode, in series with the robot;
 - ``models/planning_model.yaml``: robot + tool, what the planner uses before identification;
-- ``poses/pose_*.yaml``: modal models at six robot poses (pose-dependent dynamics);
-- ``setup.yaml``: the planning setup; ``toolpath.yaml`` + ``toolpath.csv``: a path across the poses.
+- ``robot/``: the cell's robot, a KUKA KR 500 R2800-2 (URDF from kuka_robot_descriptions, Apache
+  2.0, see ``robot/README.md``) with a 120 kg spindle on an offset bracket, ``robot.yaml``
+  (``robomill-robot/1`` without joint stiffness: what ``robot calibrate`` fits);
+- ``truth/robot_truth.yaml``: the joint stiffness and damping the poses were simulated with, and
+  (``x_model_error``) what the truth has beyond the rigid-link model: link masses 12 % heavier
+  than the URDF's and tilting compliance of the main bearings (joints 2 and 3 softer in proportion
+  to the squared reach);
+- ``poses/pose_*.yaml``: modal models "identified" at six robot poses along the path: the truth's
+  four most compliant tool-tip modes (with identification noise: 1 % frequency, 10 % damping,
+  5 % stiffness, 2 deg direction) in series with the spindle/tool modes;
+- ``setup.yaml``: the planning setup; ``toolpath.yaml`` + ``toolpath.csv``: a path in the part
+  frame (``workpiece_frame``) with the robot, its joints from inverse kinematics (rotation 0 about
+  the tool axis).
+
+The milling records (and ``truth/robot_at_cut.yaml``) are simulated with the paper's modal model
+(10.5 / 24.8 / 9.6 Hz, along X / Y / Z) as before; the robot truth at the paper's pose (the middle
+of the path) has its dominant modes at 9.0 and 11.0 Hz in the X-Z plane and 24.3 Hz along Y: the
+joint stiffnesses were fitted to the paper's modes at that pose (a least-squares fit of the three
+frequencies and stiffnesses with a weak prior on DOMAIN.md's KR500 values, rounded).
 
 Run with ``python examples/kr500_acetal/make_example.py [--out DIR]``.
 """
@@ -34,6 +51,8 @@ from oma.modal import ModalModel, in_series
 from oma.modal_io import write_modal_model
 from oma.record import Record
 from oma.record_io import write_record
+from oma._fields import dump_yaml
+from oma.io import atomic_write
 from planner.toolpath import Toolpath
 from planner.toolpath_io import write_toolpath
 from stability.setup import Limits, Setup
@@ -44,7 +63,39 @@ HERE = Path(__file__).resolve().parent
 SEED = 20200532  # fixed: the example is regenerated bit for bit
 
 # --- the paper's cell ---------------------------------------------------------------------------
-PAPER_JOINTS_DEG = np.array([88.44, -13.62, 72.42, 180.90, 59.55, -0.67])
+# The robot: the KR 500 R2800-2's URDF (vendored in robot/), a spindle on an offset bracket (the tip
+# 0.2 m off the flange axis, so the rotation about the tool axis moves the whole arm).
+ROBOT_DIR = "robot"
+URDF_NAME = "kr500_r2800_2.urdf"
+LICENSE_NAME = "LICENSE-kuka-robot-descriptions"
+ROBOT_DOC = {
+    "format": "robomill-robot/1",
+    "name": "KUKA KR 500 R2800-2 with a 120 kg milling spindle on an offset bracket",
+    "urdf": URDF_NAME,
+    "base_link": "base_link",
+    "flange_link": "tool0",
+    "tool": {"tip_m": [0.0, -0.2, 0.38], "axis": [0.0, 0.0, -1.0], "mass_kg": 120.0,
+             "center_of_mass_m": [0.0, -0.12, 0.17], "inertia_kg_m2": [[3.5, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 1.2]]},
+}
+ROBOT_README = (
+    "# The cell's robot\n\n"
+    "`kr500_r2800_2.urdf` is the KUKA KR 500 R2800-2 description of kuka_robot_descriptions "
+    "(Apache License 2.0, `LICENSE-kuka-robot-descriptions`), copied unchanged from the shared data "
+    "directory. `robot.yaml` adds the spindle body; it has no joint stiffness: `robomill robot calibrate` "
+    "fits it to the identified poses (`../poses/`).\n")
+# The truth the identified poses come from: joint stiffness (N m/rad) fitted so that the truth at the
+# paper's pose has the paper's modes, joint damping, and the model error beyond rigid links.
+TRUTH_JOINT_STIFFNESS_N_M_RAD = (3.2e7, 6.9e6, 2.9e6, 1.1e6, 5.3e5, 7.9e5)
+TRUTH_DAMPING_RATIO = (0.05, 0.05, 0.05, 0.04, 0.04, 0.04)
+TRUTH_MASS_FACTOR = 1.12  # link masses and inertias 12 % above the URDF's
+TRUTH_TILT = 0.6  # compliance of joints 2 and 3 times 1 + 0.6 (reach / reach at the paper's pose)^2
+# The part frame: origin in front of the robot, the part's x along the machine's Y.
+WORKPIECE_ORIGIN_M = (1.3, 0.0, 0.7)
+WORKPIECE_RPY_DEG = (0.0, 0.0, 90.0)
+# The paper's pose: the tool tip at the middle of the path (the part frame's origin), tool axis +Z,
+# rotation 0 (the flange x axis along the feed +Y): URDF joint values of the KR 500 R2800-2, from
+# inverse kinematics (branch 2: see paper_joints_deg()), rounded to 1e-4 deg.
+PAPER_JOINTS_DEG = np.array([0.0, -81.2257, 129.0302, 180.0, -42.1955, 90.0])
 TOOL = Tool(teeth=2, diameter_m=0.0254, helix_rad=np.deg2rad(30.0))
 ACETAL = Material(
     name="acetal",
@@ -87,34 +138,93 @@ TOOL_MODE = ModalModel(
     source={"method": "assumed spindle/tool mode (simulated example)"},
 )
 
-# Pose dependence: six poses along the cell's working line. Natural frequencies, stiffness and the
-# in-plane mode directions vary smoothly with the joints (the base joint q1 turns the arm's principal
-# compliance directions about Z). Synthetic but of the size measured on real arms (10-30 %).
-POSE_JOINTS_DEG = np.array(
-    [
-        [78.0, -20.0, 80.0, 180.9, 59.55, -0.67],
-        [82.0, -17.5, 77.0, 180.9, 59.55, -0.67],
-        [86.0, -15.0, 74.5, 180.9, 59.55, -0.67],
-        [90.0, -12.5, 71.0, 180.9, 59.55, -0.67],
-        [94.0, -10.0, 68.0, 180.9, 59.55, -0.67],
-        [98.0, -7.5, 65.0, 180.9, 59.55, -0.67],
-    ]
-)
+# The path: 0.3 m along the part's x (the machine's +Y) through the part frame's origin; path
+# parameter s in -0.02..1.08, 0..1 spanning the six identified poses (s = 0, 0.2, ..., 1).
+N_PATH = 240
+POSE_PARAMETERS = np.linspace(0.0, 1.0, 6)
+POSE_NOISE_SEED = SEED + 1  # identification noise of the poses (its own stream: the records keep theirs)
 
 
-def robot_model_at(joints_deg) -> ModalModel:
-    """The (synthetic) robot modal model at a pose: smooth in the joints, equal to ROBOT_AT_CUT at
-    the paper's pose."""
-    q = np.deg2rad(np.asarray(joints_deg, dtype=float) - PAPER_JOINTS_DEG)
-    reach = np.sin(q[1]) - 0.8 * np.sin(q[2])  # arm stretching out: softer, lower modes
-    freq = ROBOT_AT_CUT.natural_frequency_hz * (1.0 - 0.6 * reach) * np.array([1.0, 1.0 + 0.3 * q[0], 1.0])
-    stiff = ROBOT_AT_CUT.stiffness_N_m * (1.0 - 1.0 * reach)
-    zeta = ROBOT_AT_CUT.damping_ratio * (1.0 + 0.5 * reach)
-    c, s = np.cos(q[0]), np.sin(q[0])
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    dirs = ROBOT_AT_CUT.directions @ rot.T
-    return ModalModel(freq, zeta, stiff, dirs, joints_deg=np.asarray(joints_deg, dtype=float),
-                      source={"method": "simulated truth (pose model)"})
+def path_points_part(s) -> np.ndarray:
+    """Tool-tip positions in the part frame at path parameters ``s``, m, (n, 3)."""
+    s = np.asarray(s, dtype=float)
+    return np.column_stack([-0.15 + 0.3 * s, np.zeros(s.size), np.zeros(s.size)])
+
+
+def write_robot_files(out: Path):
+    """The robot directory (URDF and licence copied when writing elsewhere than here) and the robot."""
+    from planner.robot import read_robot
+
+    directory = out / ROBOT_DIR
+    directory.mkdir(parents=True, exist_ok=True)
+    for name in (URDF_NAME, LICENSE_NAME):
+        source, target = HERE / ROBOT_DIR / name, directory / name
+        if source.resolve() != target.resolve():
+            with atomic_write(target) as tmp:
+                tmp.write_bytes(source.read_bytes())
+    with atomic_write(directory / "README.md") as tmp:
+        tmp.write_text(ROBOT_README, encoding="utf-8")
+    with atomic_write(directory / "robot.yaml") as tmp:
+        tmp.write_text(dump_yaml(ROBOT_DOC), encoding="utf-8")
+    truth = dict(ROBOT_DOC, urdf=f"../{ROBOT_DIR}/{URDF_NAME}",
+                 joints={"stiffness_N_m_rad": list(TRUTH_JOINT_STIFFNESS_N_M_RAD),
+                         "damping_ratio": list(TRUTH_DAMPING_RATIO)},
+                 x_model_error={"link_mass_factor": TRUTH_MASS_FACTOR, "tilting_compliance": TRUTH_TILT,
+                                "tilting_joints": [2, 3], "reference": "reach at the paper's pose (joint 2 to tip)"})
+    (out / "truth").mkdir(parents=True, exist_ok=True)
+    with atomic_write(out / "truth" / "robot_truth.yaml") as tmp:
+        tmp.write_text(dump_yaml(truth), encoding="utf-8")
+    return read_robot(directory / "robot.yaml")
+
+
+def machine_path(robot, s):
+    """Positions (machine frame), tool axes and feed directions of the path at ``s``, and its joints
+    (inverse kinematics at rotation 0, the branch kept along the path), rad."""
+    from planner.robot.path import solve_path
+
+    tp = _toolpath(path_points_part(s), None)
+    machine = tp.in_machine_frame()
+    n = machine.n_points
+    axis = np.broadcast_to(np.asarray(machine.tool_axis, float), (n, 3))
+    joints = solve_path(robot, machine.positions_m, axis, machine.feed_directions(), np.zeros(n), branch=2)
+    return machine, joints
+
+
+def truth_modes(robot, q):
+    """The truth's compliant-joint modes at poses ``q`` (n, 6): the URDF's links 12 % heavier and the
+    main bearings' tilting compliance (joints 2 and 3), beyond the rigid-link model."""
+    from planner.robot.correction import reach_m
+    from planner.robot.dynamics import robot_modes
+
+    heavy = replace(robot, link_mass_kg=robot.link_mass_kg * TRUTH_MASS_FACTOR,
+                    link_inertia_kg_m2=robot.link_inertia_kg_m2 * TRUTH_MASS_FACTOR,
+                    damping_ratio=np.array(TRUTH_DAMPING_RATIO))
+    reach = reach_m(robot, q)
+    reference = reach_m(robot, np.radians(PAPER_JOINTS_DEG))[0]
+    k = np.tile(np.array(TRUTH_JOINT_STIFFNESS_N_M_RAD), (reach.size, 1))
+    tilt = 1.0 + TRUTH_TILT * (reach / reference) ** 2
+    k[:, 1] /= tilt
+    k[:, 2] /= tilt
+    return robot_modes(heavy, q, stiffness=k)
+
+
+def truth_model_at(robot, joints_deg, *, n_modes: int = 4, rng=None) -> ModalModel:
+    """The truth's ``n_modes`` most compliant tool-tip modes at a pose (ascending frequency), with
+    identification noise when ``rng`` is given (1 % frequency, 10 % damping, 5 % stiffness, 2 deg
+    direction: what OMA of a few records gives)."""
+    modes = truth_modes(robot, np.radians(joints_deg)[None])
+    keep = np.sort(np.argsort(-modes.compliance_m_N[0])[:n_modes])
+    fn, zeta = modes.frequency_hz[0, keep], modes.damping_ratio[0, keep]
+    k, dirs = modes.stiffness_N_m[0, keep], np.array(modes.directions[0, keep])
+    if rng is not None:
+        fn = fn * (1 + 0.01 * rng.standard_normal(fn.size))
+        zeta = zeta * (1 + 0.10 * rng.standard_normal(fn.size))
+        k = k * (1 + 0.05 * rng.standard_normal(fn.size))
+        tilt = np.radians(2.0) * rng.standard_normal((fn.size, 3))
+        dirs = dirs + np.cross(tilt, dirs)
+        dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    return ModalModel(fn, zeta, k, dirs, joints_deg=np.asarray(joints_deg, dtype=float),
+                      source={"method": "simulated truth (robot with model error)"})
 
 
 def hammer_reference(model: ModalModel, rng: np.random.Generator) -> FRFTable:
@@ -156,13 +266,13 @@ def write_records(out: Path, rng: np.random.Generator) -> None:
         )
         record = result.to_record(TOOL, PAPER_CUT, material=ACETAL, name=f"kr500-acetal-2700rpm-{name}",
                                   joints_deg=PAPER_JOINTS_DEG)
-        record = replace(steady_part(record, LEAD_IN_S), sensors=SENSORS, robot_model="KUKA KR500-3 (simulated)")
+        record = replace(steady_part(record, LEAD_IN_S), sensors=SENSORS, robot_model="KUKA KR 500 R2800-2 (simulated)")
         directory = out / "records" / name
         write_record(record, directory)
         write_frf_csv(reference, directory / "reference_frf.csv")
 
 
-def write_models(out: Path) -> None:
+def write_models(out: Path, robot) -> None:
     write_modal_model(ROBOT_AT_CUT, out / "truth" / "robot_at_cut.yaml")
     write_modal_model(TOOL_MODE, out / "models" / "tool_mode.yaml")
     write_modal_model(
@@ -170,9 +280,12 @@ def write_models(out: Path) -> None:
                source={"method": "robot truth + tool mode (simulated example)"}),
         out / "models" / "planning_model.yaml",
     )
-    for i, joints in enumerate(POSE_JOINTS_DEG):
-        write_modal_model(in_series(robot_model_at(joints), TOOL_MODE, joints_deg=joints,
-                                 source={"method": "simulated truth (pose model) + tool mode"}),
+    _, joints = machine_path(robot, POSE_PARAMETERS)
+    rng = np.random.default_rng(POSE_NOISE_SEED)
+    for i, q in enumerate(np.round(np.degrees(joints.joints_rad), 4)):
+        write_modal_model(in_series(truth_model_at(robot, q, rng=rng), TOOL_MODE, joints_deg=q,
+                                    source={"method": "simulated truth (robot with model error, identification "
+                                                      "noise) + tool mode"}),
                           out / "poses" / f"pose_{i + 1}.yaml")
 
 
@@ -188,30 +301,28 @@ LIMITS = Limits(
 )
 
 
-def write_setup_and_toolpath(out: Path) -> None:
+def _toolpath(positions_part, joints_deg, depth=None) -> Toolpath:
+    n = positions_part.shape[0]
+    return Toolpath(
+        tool=TOOL, material=ACETAL, tool_axis=[0.0, 0.0, 1.0], positions_m=positions_part, joints_deg=joints_deg,
+        spindle_rpm=np.full(n, 2700.0), feed_per_tooth_m=np.full(n, 0.0005), radial_depth_m=np.full(n, 0.006),
+        axial_depth_m=np.full(n, 0.006) if depth is None else depth, milling=np.full(n, "down"), limits=LIMITS,
+        robot_file=None, workpiece_origin_m=np.array(WORKPIECE_ORIGIN_M), workpiece_rpy_deg=np.array(WORKPIECE_RPY_DEG),
+    )
+
+
+def write_setup_and_toolpath(out: Path, robot) -> None:
     setup_cut = replace(PAPER_CUT, spindle_rpm=None, axial_depth_m=None)
     write_setup(Setup(tool=TOOL, cut=setup_cut, material=ACETAL, limits=LIMITS, name="kr500 acetal side milling"),
                 out / "setup.yaml")
-    # The path: 0.3 m along +Y at the table, the joints moving through the six poses; the last 8 %
-    # of the path runs past the last identified pose (flagged by `check`), and a middle stretch is cut
-    # 2.5x deeper (where chatter is expected).
-    n = 240
-    s = np.linspace(-0.02, 1.08, n)  # path parameter; 0..1 spans the identified poses
-    positions = np.column_stack([np.full(n, 1.2), -0.15 + 0.3 * s, np.full(n, 0.4)])
-    knots = np.linspace(0.0, 1.0, len(POSE_JOINTS_DEG))
-    joints = np.column_stack([np.interp(s, knots, POSE_JOINTS_DEG[:, j], left=np.nan, right=np.nan)
-                              for j in range(6)])
-    # beyond the identified span the joints keep moving at the same rate (linear extrapolation)
-    for j in range(6):
-        slope = (POSE_JOINTS_DEG[-1, j] - POSE_JOINTS_DEG[0, j]) / (knots[-1] - knots[0])
-        joints[:, j] = np.where(s < 0, POSE_JOINTS_DEG[0, j] + slope * s, joints[:, j])
-        joints[:, j] = np.where(s > 1, POSE_JOINTS_DEG[-1, j] + slope * (s - 1), joints[:, j])
+    # The path: 0.3 m along the part's x (machine +Y) through the six identified poses; the last 8 %
+    # runs past the last one (flagged by `check --models`), and a middle stretch is cut 2.5x deeper
+    # (where chatter is expected). Joints by inverse kinematics at rotation 0 (`posture` may do better).
+    s = np.linspace(-0.02, 1.08, N_PATH)
+    _, joints = machine_path(robot, s)
     depth = np.where((s > 0.4) & (s < 0.6), 0.015, 0.006)
-    toolpath = Toolpath(
-        tool=TOOL, material=ACETAL, tool_axis=[0.0, 0.0, 1.0], positions_m=positions, joints_deg=joints,
-        spindle_rpm=np.full(n, 2700.0), feed_per_tooth_m=np.full(n, 0.0005), radial_depth_m=np.full(n, 0.006),
-        axial_depth_m=depth, milling=np.full(n, "down"), limits=LIMITS,
-    )
+    toolpath = replace(_toolpath(path_points_part(s), np.round(joints.joints_deg, 4), depth),
+                       robot_file=str(out / ROBOT_DIR / "robot.yaml"))
     write_toolpath(toolpath, out / "toolpath.yaml")
 
 
@@ -220,8 +331,12 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=HERE)
     args = parser.parse_args(argv)
     rng = np.random.default_rng(SEED)
-    write_models(args.out)
-    write_setup_and_toolpath(args.out)
+    robot = write_robot_files(args.out)
+    _, paper = machine_path(robot, [0.5, 0.6])
+    if not np.allclose(paper.joints_deg[0], PAPER_JOINTS_DEG, atol=1e-4, rtol=0):
+        raise RuntimeError(f"PAPER_JOINTS_DEG is not the pose at the middle of the path: {paper.joints_deg[0]}")
+    write_models(args.out, robot)
+    write_setup_and_toolpath(args.out, robot)
     write_records(args.out, rng)
     print(f"example written to {args.out}")
 
