@@ -166,7 +166,9 @@ def run_chunks(fn: Callable[[Any, Any], Any], payload: Any, chunks: Sequence[Any
                                  pure=False)
             index = {f.key: i for i, f in enumerate(futures)}
             done = 0
-            for future in as_completed(futures):
+            with client.as_current():  # as_completed finds its event loop through the current client
+                completed = as_completed(futures)
+            for future in completed:
                 results[index[future.key]] = future.result()
                 future.release()
                 done += 1
