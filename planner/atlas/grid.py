@@ -18,10 +18,20 @@ import numpy as np
 from oma._arrays import readonly as _ro
 from oma.errors import InputError
 
-__all__ = ["Region", "rpy_matrix", "default_rotations_deg"]
+__all__ = ["Region", "RegionError", "rpy_matrix", "default_rotations_deg"]
 
 #: Largest grid an atlas builds (points, before rotations): a guard against a unit slip (step in mm).
 MAX_POINTS = 50_000_000
+
+
+class RegionError(InputError):
+    """A region (command-line options, no file) that cannot be used: ``option: expected ..., found ...``."""
+
+    def __init__(self, option: str, expected: str, found: str):
+        super().__init__(None, option, expected, found)
+
+    def __str__(self) -> str:
+        return f"{self.field}: expected {self.expected}, found {self.found}"
 
 
 def rpy_matrix(rpy_deg) -> np.ndarray:
@@ -36,7 +46,7 @@ def rpy_matrix(rpy_deg) -> np.ndarray:
 def default_rotations_deg(step_deg: float = 30.0) -> np.ndarray:
     """Rotations ``-180 <= r < 180`` every ``step_deg`` (12 for 30 deg)."""
     if not (math.isfinite(step_deg) and 0 < step_deg <= 360):
-        raise InputError(None, "--rotation-step-deg", "a step in (0, 360] deg", repr(step_deg))
+        raise RegionError("--rotation-step-deg", "a step in (0, 360] deg", repr(step_deg))
     n = int(round(360.0 / step_deg))
     return -180.0 + step_deg * np.arange(n)
 
@@ -71,22 +81,22 @@ class Region:
         for name in ("lower_m", "upper_m", "origin_m", "rpy_deg"):
             value = np.asarray(getattr(self, name), float)
             if value.shape != (3,) or not np.all(np.isfinite(value)):
-                raise InputError(None, _option(name), "3 finite numbers", repr(getattr(self, name)))
+                raise RegionError(_option(name), "3 finite numbers", repr(getattr(self, name)))
             object.__setattr__(self, name, _ro(value))
         if np.any(self.lower_m > self.upper_m):
-            raise InputError(None, "--box-m", "lower corner <= upper corner on every axis",
+            raise RegionError("--box-m", "lower corner <= upper corner on every axis",
                              f"{self.lower_m.tolist()} .. {self.upper_m.tolist()}")
         step = float(self.step_m)
         if not (math.isfinite(step) and step > 0):
-            raise InputError(None, "--step-m", "a grid step > 0 m", repr(self.step_m))
+            raise RegionError("--step-m", "a grid step > 0 m", repr(self.step_m))
         object.__setattr__(self, "step_m", step)
         rot = np.atleast_1d(np.asarray(self.rotations_deg, float))
         if rot.ndim != 1 or rot.size == 0 or not np.all(np.isfinite(rot)):
-            raise InputError(None, "--rotations-deg", "one or more finite angles", repr(self.rotations_deg))
+            raise RegionError("--rotations-deg", "one or more finite angles", repr(self.rotations_deg))
         object.__setattr__(self, "rotations_deg", _ro(rot))
         n = int(np.prod(self.shape))
         if n > MAX_POINTS:
-            raise InputError(None, "--step-m", f"at most {MAX_POINTS} grid points (is the step in m?)",
+            raise RegionError("--step-m", f"at most {MAX_POINTS} grid points (is the step in m?)",
                              f"{n} points at {step:g} m")
 
     @property

@@ -17,11 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from oma._arrays import readonly as _ro
-from oma.errors import InputError
 
 from .engine import run_chunks
 from .evaluate import COLUMNS, CONSTRAINT_NAMES, evaluate_chunk
-from .grid import Region
+from .grid import Region, RegionError
 from .problem import AtlasProblem
 
 __all__ = ["AtlasResult", "run_atlas", "chunk_points", "SECONDS_PER_GROUP"]
@@ -183,7 +182,7 @@ def run_atlas(problem: AtlasProblem, region: Region, *, scheduler: str | None = 
     size = int(points_per_chunk) if points_per_chunk else chunk_points(n, n_rot, problem.n_freq,
                                                                         target_task_s=target_task_s)
     if size < 1:
-        raise InputError(None, "--chunk-points", "a positive number of positions per task", repr(points_per_chunk))
+        raise RegionError("--chunk-points", "a positive number of positions per task", repr(points_per_chunk))
     chunks = [machine[i:i + size] for i in range(0, n, size)]
     parts = run_chunks(evaluate_chunk, problem, chunks, scheduler=scheduler, n_workers=n_workers,
                        progress=progress, connect_timeout_s=connect_timeout_s, on_chunk_done=on_chunk_done)
@@ -194,7 +193,7 @@ def run_atlas(problem: AtlasProblem, region: Region, *, scheduler: str | None = 
         columns[name] = np.concatenate([p[name] for p in parts])
     reach = columns["reachable"]
     if not np.any(reach):
-        raise InputError(None, "region", "positions the robot reaches with the setup's tool axis",
+        raise RegionError("--box-m", "a region the robot reaches with the setup's tool axis",
                          f"none of the {n} positions at any of the {n_rot} rotations "
                          f"({region.lower_m.tolist()} .. {region.upper_m.tolist()} m)")
     codes = columns["active_constraint"]
