@@ -107,9 +107,10 @@ def test_ranking_rule():
 def test_chunk_sizes():
     from planner.atlas.run import chunk_points
 
-    assert chunk_points(10_000, 12, 1000) == 277  # ~1 s of work at 0.3 ms per (position, rotation)
-    assert chunk_points(40, 3, 1000) == 3  # small runs still give >= 16 tasks
-    assert chunk_points(1, 12, 1000) == 1
+    assert chunk_points(10_000, 12, 500) == 333  # ~1 s of work at 0.25 ms per (position, rotation)
+    assert chunk_points(10_000, 12, 1000) == 166
+    assert chunk_points(40, 3, 500) == 3  # small runs still give >= 16 tasks
+    assert chunk_points(1, 12, 500) == 1
 
 
 def test_table_round_trip(tmp_path):

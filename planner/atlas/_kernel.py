@@ -48,6 +48,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
     gap = np.empty(n_freq, dtype=np.complex128)
     valid = np.empty((2, n_freq - 1), dtype=np.bool_)
     env = np.empty(n_rpm)
+    last = np.full(64, -1, dtype=np.int64)  # per lobe k: the grid index its last segment started at
     xs = 60.0 / teeth
     inv_lstep = (n_rpm - 1) / math.log(hi_rpm / lo_rpm)
     keep_env = out_env.shape[0] > 0
@@ -84,6 +85,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
         for j in range(n_rpm):
             env[j] = np.inf
         for b in range(2):
+            last[:] = -1
             for i in range(n_freq - 1):
                 if not valid[b, i]:
                     continue
@@ -96,14 +98,23 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
                     s_lo, s_hi = min(x0, x1), max(x0, x1)
                     if s_hi < lo_rpm or s_lo > hi_rpm:
                         continue
-                    # the grid is geometric: the first index at or above s_lo, one below the
-                    # first above s_hi (rounding guarded by the comparisons)
-                    j0 = max(0, int(math.floor(math.log(s_lo / lo_rpm) * inv_lstep)))
+                    # first grid speed >= s_lo: walked from where this lobe's previous interval
+                    # started (its segments are adjacent), found from the geometric grid at first
+                    if k >= last.shape[0]:
+                        more = np.full(2 * k + 2, -1, dtype=np.int64)
+                        more[:last.shape[0]] = last
+                        last = more
+                    j0 = last[k]
+                    if j0 < 0:
+                        j0 = min(n_rpm - 1, max(0, int(math.log(s_lo / lo_rpm) * inv_lstep)))
+                    while j0 > 0 and rpm[j0 - 1] >= s_lo:
+                        j0 -= 1
                     while j0 < n_rpm and rpm[j0] < s_lo:
                         j0 += 1
-                    j1 = min(n_rpm, int(math.floor(math.log(s_hi / lo_rpm) * inv_lstep)) + 2)
-                    while j1 > j0 and rpm[j1 - 1] > s_hi:
-                        j1 -= 1
+                    last[k] = j0
+                    j1 = j0
+                    while j1 < n_rpm and rpm[j1] <= s_hi:
+                        j1 += 1
                     for j in range(j0, j1):
                         t = (rpm[j] - x0) / (x1 - x0) if x1 != x0 else 0.5
                         t = min(max(t, 0.0), 1.0)

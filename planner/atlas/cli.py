@@ -45,7 +45,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--rpm", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
                    help="speed range (default: the setup's limits.spindle_rpm)")
     p.add_argument("--n-rpm", type=int, default=300, help="speeds of the log grid over the range (default 300)")
-    p.add_argument("--n-freq", type=int, default=1000, help="ZOA chatter frequencies per pose (default 1000)")
+    p.add_argument("--n-freq", type=int, default=500, help="ZOA chatter frequencies per pose (default 500)")
     p.add_argument("--tool-model", default=None, help="spindle/tool modes (robomill-modal/1), in series")
     p.add_argument("--chunk-points", type=int, default=None, help="positions per task (default: ~1 s of work)")
     p.add_argument("--connect-timeout-s", type=float, default=5.0, help="time a --scheduler has to answer, s")

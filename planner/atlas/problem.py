@@ -49,7 +49,7 @@ class AtlasProblem:
     margin: float
     mrr_per_depth_rpm: float  # MRR = this * ap * n
     torque_per_depth_N: float  # mean torque = this * ap
-    n_freq: int = 1000
+    n_freq: int = 500
     min_tip_fraction: float = 1e-3
     singularity_threshold: float = 1e-3
     tool_modes: dict | None = None
@@ -68,7 +68,7 @@ def _limits_error(setup_file, field, found="none"):
     return InputError(setup_file, field, "a bound for the atlas (the setup's limits section)", found)
 
 
-def build_problem(robot, setup, region, *, setup_file=None, rpm_range=None, n_rpm: int = 300, n_freq: int = 1000,
+def build_problem(robot, setup, region, *, setup_file=None, rpm_range=None, n_rpm: int = 300, n_freq: int = 500,
                   tool_model=None, min_tip_fraction: float = 1e-3,
                   singularity_threshold: float = 1e-3) -> AtlasProblem:
     """The :class:`AtlasProblem` of a robot, a setup and a region.

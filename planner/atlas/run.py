@@ -4,8 +4,8 @@ table assembled in chunk order, the best placement and the best rotation per pos
 Chunks are sized for the scheduler: a task should hold ~0.5-2 s of work (Dask's overhead is a few
 ms per task, and a killed worker loses at most a few tasks), and there should be at least 16 tasks
 so that two or more workers share the load. The cost model behind ``target_task_s`` was measured on
-this machine (benchmarks/bench_atlas.py): ~0.3 ms of CPU per (position, rotation) with the
-default 1000 chatter frequencies, proportional to ``n_freq``.
+this machine (benchmarks/bench_atlas.py): ~0.25 ms of CPU per (position, rotation) with the
+default 500 chatter frequencies, about proportional to ``n_freq``.
 """
 
 from __future__ import annotations
@@ -25,14 +25,14 @@ from .problem import AtlasProblem
 
 __all__ = ["AtlasResult", "run_atlas", "chunk_points", "SECONDS_PER_GROUP"]
 
-#: CPU seconds per (position, rotation) at ``n_freq = 1000`` (measured, see the module docstring).
-SECONDS_PER_GROUP = 3.0e-4
+#: CPU seconds per (position, rotation) at ``n_freq = 500`` (measured, see the module docstring).
+SECONDS_PER_GROUP = 2.5e-4
 
 
 def chunk_points(n_points: int, n_rotations: int, n_freq: int, *, target_task_s: float = 1.0,
                  min_tasks: int = 16) -> int:
     """Positions per task: about ``target_task_s`` of work, and at least ``min_tasks`` tasks."""
-    per_point = n_rotations * SECONDS_PER_GROUP * max(n_freq, 100) / 1000.0
+    per_point = n_rotations * SECONDS_PER_GROUP * max(n_freq, 50) / 500.0
     size = max(1, int(target_task_s / per_point))
     return max(1, min(size, math.ceil(n_points / min_tasks)))
 
