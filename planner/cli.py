@@ -20,7 +20,8 @@ import numpy as np
 
 from oma.errors import InputError
 from planner.cli_common import (EXIT_INPUT, EXIT_INTERNAL, EXIT_NEGATIVE, EXIT_OK, Parser, UsageError,
-                                add_json, coefficients, emit, load_structure, rpm_range, save_figure)
+                                add_json, add_model_options, coefficients, emit, load_structure, rpm_range,
+                                save_figure, structure_from_args)
 
 __all__ = ["main", "UsageError", "build_parser"]
 
@@ -33,7 +34,7 @@ def _cmd_lobes(args) -> int:
     from stability.setup_io import read_setup
 
     setup = read_setup(args.setup)
-    structure = load_structure(args.model, args.axis)
+    structure = structure_from_args(args, frf=True)
     diagram = lobe_diagram(structure, setup.tool, setup.cut, coefficients(setup, args.setup),
                            rpm_range=rpm_range(args, setup), method=args.method, n_rpm=args.n_rpm)
     if args.output:
@@ -51,7 +52,7 @@ def _cmd_predict(args) -> int:
     from stability.setup_io import read_setup
 
     setup = read_setup(args.setup)
-    structure = load_structure(args.model, args.axis)
+    structure = structure_from_args(args, frf=True)
     for option, value in (("--rpm", args.rpm), ("--depth", args.depth)):
         if not value > 0:
             raise UsageError(option, "a positive number", repr(value))
@@ -146,12 +147,11 @@ def _cmd_check(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    from oma.modal_io import read_modal_model
     from planner.optimize import plan
     from stability.setup_io import read_setup
 
     setup = read_setup(args.setup)
-    model = read_modal_model(args.model)
+    model = structure_from_args(args)
     result = plan(setup, model, method=args.method)
     if args.output:
         fig, _ = result.plot()
@@ -196,12 +196,11 @@ def _cmd_diagnose(args) -> int:
 
 def _cmd_simulate(args) -> int:
     from stability.setup_io import read_setup
-    from oma.modal_io import read_modal_model
     from oma.record_io import write_record
     from stability.simulate import BackgroundForce, SensorModel, simulate
 
     setup = read_setup(args.setup)
-    model = read_modal_model(args.model)
+    model = structure_from_args(args)
     cutting = coefficients(setup, args.setup)
     for option, value in (("--rpm", args.rpm), ("--depth", args.depth), ("--duration", args.duration),
                           ("--sample-rate", args.sample_rate)):
@@ -243,7 +242,7 @@ def _cmd_demo(args) -> int:
 
 #: Command groups that live in their own sub-package; each module has ``add_parsers(sub)``, which
 #: adds its subcommands (with ``handler`` defaults) to the ``robomill`` subparsers.
-COMMAND_GROUPS: tuple[str, ...] = ("planner.atlas.cli",)
+COMMAND_GROUPS: tuple[str, ...] = ("planner.robot.cli", "planner.atlas.cli")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -269,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("plan", help="recommended spindle speed, depth and feed")
     p.add_argument("setup")
-    p.add_argument("--model", required=True)
+    add_model_options(p, frf=False)
     p.add_argument("--method", choices=["auto", "zoa", "sdm"], default="auto",
                    help="stability limit: auto = SDM below ae/D 0.2 (flip lobes), else ZOA")
     p.add_argument("-o", "--output", default=None, help="figure of the lobes with the optimum")
@@ -293,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="time-domain simulation of a cut, written as a record")
     p.add_argument("setup")
-    p.add_argument("--model", required=True)
+    add_model_options(p, frf=False)
     p.add_argument("--rpm", type=float, required=True)
     p.add_argument("--depth", type=float, required=True, help="axial depth of cut, m")
     p.add_argument("--duration", type=float, required=True, help="s")
@@ -312,10 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, help_text in (("lobes", "stability lobe diagram"), ("predict", "one operating point")):
         p = sub.add_parser(name, help=help_text)
         p.add_argument("setup")
-        p.add_argument("--model", required=True, nargs="+",
-                       help="modal model (.yaml), or measured FRF files (.csv, .uff, .frf)")
-        p.add_argument("--axis", nargs="+", default=None, choices=["X", "Y", "Z"],
-                       help="direction of each .frf file given to --model, in order")
+        add_model_options(p, frf=True)
         p.add_argument("--method", choices=["zoa", "sdm"], default="zoa")
         if name == "lobes":
             p.add_argument("--rpm", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,

@@ -17,7 +17,8 @@ from oma.errors import InputError
 from planner.report import jsonable
 
 __all__ = ["EXIT_OK", "EXIT_NEGATIVE", "EXIT_INPUT", "EXIT_INTERNAL", "UsageError", "Parser", "emit",
-           "add_json", "save_figure", "load_structure", "rpm_range", "coefficients"]
+           "add_json", "save_figure", "load_structure", "rpm_range", "coefficients", "add_model_options",
+           "structure_from_args"]
 
 EXIT_OK, EXIT_NEGATIVE, EXIT_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 
@@ -72,6 +73,42 @@ def load_structure(paths: Sequence[str], axes: Sequence[str] | None = None, *, o
     axis_of = dict(zip(frf_files, axes))
     tables = [read_frf(p, axis=axis_of.get(p)) for p in paths]
     return tables[0] if len(tables) == 1 else FRFTable.merge(tables)
+
+
+def add_model_options(p: argparse.ArgumentParser, *, frf: bool) -> None:
+    """``--model`` (a modal model; with ``frf`` also measured FRF files and ``--axis``) or, instead,
+    ``--robot ROBOT --joints-deg Q1..Q6 [--tool-model MODEL]`` (cli.md)."""
+    from planner.robot.cli import add_robot_options
+
+    if frf:
+        p.add_argument("--model", nargs="+", default=None,
+                       help="modal model (.yaml), or measured FRF files (.csv, .uff, .frf)")
+        p.add_argument("--axis", nargs="+", default=None, choices=["X", "Y", "Z"],
+                       help="direction of each .frf file given to --model, in order")
+    else:
+        p.add_argument("--model", default=None, help="modal model (.yaml)")
+    add_robot_options(p)
+
+
+def structure_from_args(args, *, frf: bool = False):
+    """The structure of ``--model`` (see :func:`load_structure`; a modal model only unless ``frf``)
+    or of ``--robot ... --joints-deg ...`` (the calibrated robot's model at that pose)."""
+    if getattr(args, "robot", None) is not None:
+        if args.model is not None:
+            raise UsageError("--robot", "either --model or --robot, not both", "both")
+        from planner.robot.cli import model_from_robot_args
+
+        return model_from_robot_args(args)
+    for option in ("joints_deg", "tool_model"):
+        if getattr(args, option, None) is not None:
+            raise UsageError("--" + option.replace("_", "-"), "used with --robot only", "no --robot")
+    if args.model is None:
+        raise UsageError("--model", "a modal model (or --robot ROBOT --joints-deg Q1 .. Q6)", "nothing")
+    if frf:
+        return load_structure(args.model, args.axis)
+    from oma.modal_io import read_modal_model
+
+    return read_modal_model(args.model)
 
 
 def rpm_range(args, setup) -> tuple[float, float]:

@@ -56,3 +56,46 @@ def write_robot_file(directory, *, urdf: str = "kr500_r2800_2", stiffness: bool 
     path = Path(directory) / name
     path.write_text(ROBOT_YAML.format(urdf=urdf_path(urdf), joints=JOINTS_YAML if stiffness else ""))
     return path
+
+
+# ------------------------------------------------------------------ synthetic identified poses
+#: A milling pose of the KR 500 (deg): tool pointing down in front of the robot, and the spread of
+#: the working region around it.
+NOMINAL_POSE_DEG = (0.0, -60.0, 100.0, 0.0, 50.0, 0.0)
+REGION_SPREAD_DEG = (30.0, 20.0, 20.0, 45.0, 25.0, 60.0)
+
+
+def region_poses(robot, n, rng, *, scale=1.0):
+    """Poses (rad, (n, 6)) drawn uniformly in the nominal pose +- ``scale`` * spread, within limits."""
+    import numpy as np
+
+    lo = np.radians(np.array(NOMINAL_POSE_DEG) - scale * np.array(REGION_SPREAD_DEG))
+    hi = np.radians(np.array(NOMINAL_POSE_DEG) + scale * np.array(REGION_SPREAD_DEG))
+    q = rng.uniform(lo, hi, (n, 6))
+    return np.clip(q, robot.lower_rad, robot.upper_rad)
+
+
+def identified_models(robot, q, rng, *, n_modes=3, noise=(0.01, 0.10, 0.05, 2.0), stiffness=None):
+    """What identification at poses ``q`` (rad) would give: the ``n_modes`` most compliant tool-tip
+    modes of ``robot`` (or of ``stiffness`` per pose, (n, 6)), with relative noise on frequency,
+    damping and stiffness and a random tilt (deg, one-sigma) of each direction."""
+    import numpy as np
+    from oma.modal import ModalModel
+    from planner.robot.dynamics import robot_modes
+
+    sf, sz, sk, su = noise
+    modes = robot_modes(robot, q, stiffness=stiffness)
+    out = []
+    for i in range(len(q)):
+        order = np.sort(np.argsort(-modes.compliance_m_N[i])[:n_modes])
+        u = modes.directions[i, order]
+        tilt = rng.normal(size=u.shape)
+        tilt -= np.sum(tilt * u, axis=1, keepdims=True) * u
+        tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
+        angle = np.radians(su) * np.abs(rng.normal(size=(len(order), 1)))
+        u = np.cos(angle) * u + np.sin(angle) * tilt
+        out.append(ModalModel(modes.frequency_hz[i, order] * (1 + sf * rng.normal(size=len(order))),
+                              modes.damping_ratio[i, order] * (1 + sz * rng.normal(size=len(order))),
+                              modes.stiffness_N_m[i, order] * (1 + sk * rng.normal(size=len(order))), u,
+                              joints_deg=np.degrees(q[i])))
+    return out

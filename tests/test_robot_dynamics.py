@@ -95,3 +95,14 @@ def test_errors(robot, tmp_path):
     bad[4] = 2.5
     with pytest.raises(RobotError, match=r"joint 5 \(joint_5\) within \[-120, 120\] deg"):
         robot_modal_model(robot, bad)
+
+
+def test_compiled_kernel_equals_the_numpy_reference(robot):
+    from planner.robot import tip_jacobian
+    from planner.robot.dynamics import mass_and_jacobian
+
+    q = np.random.default_rng(8).uniform(robot.lower_rad, robot.upper_rad, (200, 6))
+    m, jv = mass_and_jacobian(robot, q)
+    ref = mass_matrix(robot, q)
+    np.testing.assert_allclose(m, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_allclose(jv, tip_jacobian(robot, q)[:, :3], rtol=0, atol=1e-13)

@@ -8,9 +8,14 @@ stiffness and damping from identified poses, trust), :mod:`.cli` (``robomill rob
 All functions are vectorised over poses: ``q`` in rad, shape ``(n, 6)`` or ``(6,)``.
 """
 
+from .calibrate import Calibration, Trust, calibrate, trust
 from .description import Robot, RobotError, ToolBody, read_robot, write_robot
 from .dynamics import RobotModes, mass_matrix, robot_modal_model, robot_modes
+from .ik import (IKSolutions, PathIK, continuous_branch, inverse_kinematics, joint_limit_distance, singularity_measure,
+                 tool_rotation)
 from .kinematics import forward_kinematics, tip_jacobian, tool_axis
 
 __all__ = ["Robot", "RobotError", "ToolBody", "read_robot", "write_robot", "forward_kinematics", "tip_jacobian",
-           "tool_axis", "mass_matrix", "robot_modes", "RobotModes", "robot_modal_model"]
+           "tool_axis", "mass_matrix", "robot_modes", "RobotModes", "robot_modal_model", "inverse_kinematics",
+           "IKSolutions", "PathIK", "continuous_branch", "singularity_measure", "joint_limit_distance", "tool_rotation",
+           "calibrate", "Calibration", "trust", "Trust"]

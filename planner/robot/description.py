@@ -45,7 +45,7 @@ class RobotError(InputError):
     """A ``robomill-robot/1`` file or its URDF that cannot be used."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ToolBody:
     """The rigid body bolted to the flange (spindle + holder + tool), flange frame.
 
@@ -87,7 +87,7 @@ class ToolBody:
         raise AssertionError("unreachable")  # pragma: no cover
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Robot:
     """A serial 6R robot with a tool body: what :func:`read_robot` reads.
 

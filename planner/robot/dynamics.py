@@ -27,7 +27,7 @@ from oma._arrays import readonly as _ro
 from oma.modal import ModalModel, in_series
 
 from .description import Robot, RobotError
-from .kinematics import _cross, _tip_jacobian, as_poses, body_jacobians, link_frames
+from .kinematics import _cross, as_poses, link_frames
 
 __all__ = ["body_inertias", "mass_matrix", "RobotModes", "robot_modes", "damping_matrix", "robot_modal_model",
            "direct_receptance"]
@@ -70,6 +70,24 @@ def mass_matrix(robot: Robot, q) -> np.ndarray:
     return _mass_matrix(robot, *link_frames(robot, q))
 
 
+def mass_and_jacobian(robot: Robot, q) -> tuple[np.ndarray, np.ndarray]:
+    """Mass matrix (n, 6, 6) and tool-tip translational Jacobian (n, 3, 6) at real poses ``q``
+    (rad), from the compiled kernel (:mod:`._dyn_kernel`); the same as :func:`mass_matrix` and
+    ``tip_jacobian(robot, q)[:, :3]``, several times faster."""
+    from ._dyn_kernel import mass_and_tip_jacobian
+    from .kinematics import _canonical
+
+    q = np.ascontiguousarray(as_poses(q), dtype=float)
+    rots, offs, ps = _canonical(robot)
+    mass, com, inertia = body_inertias(robot)
+    t = robot.flange_origin
+    tip = t[:3, :3] @ robot.tool.tip_m + t[:3, 3]
+    m = np.empty((q.shape[0], 6, 6))
+    jv = np.empty((q.shape[0], 3, 6))
+    mass_and_tip_jacobian(q, rots, offs, ps, mass, com, inertia, tip, m, jv)
+    return m, jv
+
+
 def _mass_matrix(robot: Robot, rot, pos) -> np.ndarray:
     mass, com, inertia = body_inertias(robot)
     n = rot.shape[0]
@@ -101,7 +119,7 @@ def _mass_matrix(robot: Robot, rot, pos) -> np.ndarray:
     return 0.5 * (m + np.swapaxes(m, -1, -2))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RobotModes:
     """The compliant-joint modes at ``n`` poses, ascending frequency.
 
@@ -175,15 +193,15 @@ def robot_modes(robot: Robot, q, *, stiffness=None, masses=None) -> RobotModes:
     """
     q = as_poses(q)
     k = _stiffness(robot, q, stiffness)
-    frames = link_frames(robot, q)
-    m = _mass_matrix(robot, *frames) if masses is None else masses
+    m, jv = mass_and_jacobian(robot, q)
+    if masses is not None:
+        m = masses
     s = 1.0 / np.sqrt(k)  # K^-1/2
     b = s[:, :, None] * m * s[:, None, :]
     mu, y = np.linalg.eigh(b)  # ascending mu = 1/w^2 -> descending frequency
     mu, y = mu[:, ::-1], y[:, :, ::-1]
     omega = 1.0 / np.sqrt(mu)
     phi = s[:, :, None] * y / np.sqrt(mu)[:, None, :]
-    jv = _tip_jacobian(robot, *frames)[:, :3, :]
     tip = np.einsum("nij,njr->nri", jv, phi)  # (n, 6, 3)
     amp2 = np.sum(tip**2, axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -1,0 +1,134 @@
+"""``robomill robot calibrate``, ``robomill robot model`` and ``--robot ... --joints-deg ...`` on
+lobes/predict, in process: exit codes, one-line errors, nothing half-written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from oma.modal_io import read_modal_model, write_modal_model
+from planner.cli import main
+from planner.robot import read_robot
+from robot_helpers import identified_models, region_poses, urdf_path, write_robot_file
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "kr500_acetal"
+POSE = ["0", "-60", "100", "0", "50", "0"]
+
+
+def _run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cell")
+    truth = read_robot(write_robot_file(d, name="truth.yaml"))
+    write_robot_file(d, stiffness=False, name="bare.yaml")
+    rng = np.random.default_rng(21)
+    paths = []
+    for i, m in enumerate(identified_models(truth, region_poses(truth, 4, rng), rng)):
+        paths.append(d / f"pose{i}.yaml")
+        write_modal_model(m, paths[-1])
+    return d, paths
+
+
+@pytest.fixture(scope="module")
+def calibrated(cell):
+    d, paths = cell
+    out = d / "out" / "calibrated.yaml"
+    code = main(["robot", "calibrate", str(d / "bare.yaml"), "--models", *map(str, paths), "-o", str(out),
+                 "--correction", "off", "--json"])
+    assert code == 0
+    return out
+
+
+def test_calibrate_writes_the_robot_and_reports_the_cli_keys(cell, capsys):
+    d, paths = cell
+    out = d / "cal2.yaml"
+    code, stdout, err = _run(capsys, "robot", "calibrate", d / "bare.yaml", "--models", *paths, "-o", out, "--json")
+    assert code == 0, err
+    payload = json.loads(stdout)
+    assert {"robot", "joint_stiffness_N_m_rad", "identifiable", "fit_error", "leave_one_out", "next_pose_deg",
+            "warnings"} <= set(payload)
+    assert len(payload["joint_stiffness_N_m_rad"]) == 6 and len(payload["fit_error"]) == 4
+    robot = read_robot(out)
+    np.testing.assert_allclose(robot.joint_stiffness_N_m_rad, payload["joint_stiffness_N_m_rad"])
+    assert robot.calibration["models"] == [str(p) for p in paths]
+
+
+def test_model_at_a_pose_and_its_trust(calibrated, tmp_path, capsys):
+    out = tmp_path / "m.yaml"
+    code, stdout, err = _run(capsys, "robot", "model", calibrated, "--joints-deg", *POSE, "-o", out, "--json")
+    assert code == 0, err
+    payload = json.loads(stdout)
+    assert payload["trusted"] is True and payload["model"]["pose"]["joints_deg"] == [0, -60, 100, 0, 50, 0]
+    assert read_modal_model(out).n_modes == len(payload["model"]["modes"])
+    far = ["0", "-125", "100", "0", "50", "0"]
+    code, stdout, err = _run(capsys, "robot", "model", calibrated, "--joints-deg", *far, "--json")
+    assert code == 0 and json.loads(stdout)["trusted"] is False
+    assert "joint(s) 2" in json.loads(stdout)["warnings"][0]
+
+
+def test_robot_option_on_lobes_and_predict_equals_the_written_model(calibrated, tmp_path, capsys):
+    model = tmp_path / "m.yaml"
+    assert main(["robot", "model", str(calibrated), "--joints-deg", *POSE, "-o", str(model)]) == 0
+    capsys.readouterr()
+    setup = EXAMPLE / "setup.yaml"
+    common = ["--rpm", "1000", "3000", "--json"]
+    _, by_model, _ = _run(capsys, "lobes", setup, "--model", model, *common)
+    code, by_robot, err = _run(capsys, "lobes", setup, "--robot", calibrated, "--joints-deg", *POSE, *common)
+    assert code == 0, err
+    assert json.loads(by_robot) == json.loads(by_model)
+    code, out, err = _run(capsys, "predict", setup, "--robot", calibrated, "--joints-deg", *POSE, "--rpm", "2000",
+                          "--depth", "0.001", "--json")
+    assert code == 0, err and "stable" in json.loads(out)
+
+
+@pytest.mark.parametrize("case", ["no_pose", "pose_outside", "bad_urdf", "no_stiffness", "outside_limits",
+                                  "model_and_robot", "joints_no_robot"])
+def test_bad_input_exit_2_one_line_nothing_written(case, cell, calibrated, tmp_path, capsys):
+    d, paths = cell
+    out = tmp_path / "out.yaml"
+    if case == "no_pose":
+        bad = tmp_path / "nopose.yaml"
+        write_modal_model(read_modal_model(paths[0]).with_modes(joints_deg=None), bad)
+        argv = ["robot", "calibrate", d / "bare.yaml", "--models", paths[1], bad, "-o", out]
+        expected = f"{bad}: pose.joints_deg: expected the pose"
+    elif case == "pose_outside":
+        bad = tmp_path / "outside.yaml"
+        model = read_modal_model(paths[0])
+        write_modal_model(model.with_modes(joints_deg=[0, 20, 90, 0, 45, 0]), bad)
+        argv = ["robot", "calibrate", d / "bare.yaml", "--models", paths[1], bad, "-o", out]
+        expected = f"{bad}: pose.joints_deg: expected joint 2 (joint_2) within [-130, 5] deg, found 20 deg"
+    elif case == "bad_urdf":
+        urdf = tmp_path / "bad.urdf"
+        urdf.write_text(urdf_path().read_text().replace('<joint name="joint_3" type="revolute">',
+                                                        '<joint name="joint_3" type="continuous">'))
+        robot_file = tmp_path / "robot.yaml"
+        robot_file.write_text((d / "bare.yaml").read_text().replace(str(urdf_path()), str(urdf)))
+        argv = ["robot", "calibrate", robot_file, "--models", *paths, "-o", out]
+        expected = f"{urdf}: joint[@name='joint_3']: expected a revolute (or fixed) joint, found type 'continuous'"
+    elif case == "no_stiffness":
+        argv = ["robot", "model", d / "bare.yaml", "--joints-deg", *POSE, "-o", out]
+        expected = "bare.yaml: joints.stiffness_N_m_rad: expected joint stiffness"
+    elif case == "outside_limits":
+        argv = ["robot", "model", calibrated, "--joints-deg", "0", "-60", "100", "0", "150", "0", "-o", out]
+        expected = "--joints-deg: expected joint 5 (joint_5) within [-120, 120] deg, found 150 deg"
+    elif case == "model_and_robot":
+        argv = ["lobes", EXAMPLE / "setup.yaml", "--model", paths[0], "--robot", calibrated, "--joints-deg", *POSE,
+                "-o", out]
+        expected = "--robot: expected either --model or --robot, not both"
+    else:
+        argv = ["predict", EXAMPLE / "setup.yaml", "--model", paths[0], "--joints-deg", *POSE, "--rpm", "2000",
+                "--depth", "0.001"]
+        expected = "--joints-deg: expected used with --robot only"
+    code, stdout, err = _run(capsys, *argv, "--json")
+    assert code == 2
+    assert stdout == "" and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and expected in err, err
+    assert not out.exists()
