@@ -124,3 +124,21 @@ def test_table_round_trip(tmp_path):
     assert back["x_m"].tolist() == [0.1, 0.2] and back["reachable"].tolist() == [True, False]
     assert back["active_constraint"].tolist() == ["power", "unreachable"]
     assert [p.name for p in tmp_path.iterdir()] == ["t.parquet"]
+
+
+def test_demo_section(tmp_path):
+    """The demo's atlas section: a report section with two figures and the table written."""
+    from planner.atlas import Region, demo_section
+    from planner.report import Report
+
+    from atlas_cases import stability_bound_setup
+
+    report = Report("atlas", tmp_path)
+    region = Region([1.5, -0.6, 0.6], [2.4, 0.6, 0.6], 0.3, [-90.0, 0.0, 90.0])
+    result = demo_section(report, robot_file(tmp_path), stability_bound_setup(), tmp_path, region=region)
+    section = report.sections[-1]
+    assert len(section.figures) == 2 and all((tmp_path / f).stat().st_size > 5_000 for f, _ in section.figures)
+    assert (tmp_path / "atlas.parquet").exists()
+    assert report.summary["atlas"]["best"] == result.best and result.best["active_constraint"] == "stability"
+    # the best placement is the largest MRR of the table
+    assert result.best["mrr_m3_s"] == np.nanmax(result.columns["mrr_m3_s"])
