@@ -126,3 +126,36 @@ def test_rows_do_not_depend_on_the_chunking(case):
     parts = [evaluate_chunk(problem, pos[i:i + 3]) for i in range(0, pos.shape[0], 3)]
     joined = {k: np.concatenate([p[k] for p in parts]) for k in out}
     assert same_table(out, joined)
+
+
+def test_sdm_checks_the_best_rows_at_low_immersion(tmp_path):
+    """ae/D = 0.08 (< 0.2): method 'auto' checks the best rows of the n_verify best positions by
+    SDM; each SDM limit equals an independent lobe_diagram(method='sdm') of the robot's modal model
+    at that row's joints and speed, and the best placement is chosen on the SDM values."""
+    from dataclasses import replace
+
+    from planner.atlas import Region, build_problem, run_atlas
+    from planner.robot import read_robot, robot_modal_model
+    from stability.lobes import lobe_diagram
+
+    robot = read_robot(robot_file(tmp_path))
+    setup = stability_bound_setup()
+    setup = replace(setup, cut=replace(setup.cut, radial_depth_m=0.002))
+    region = Region([1.8, -0.3, 0.6], [2.1, 0.3, 0.6], 0.3, [0.0, 90.0])
+    problem = build_problem(robot, setup, region)
+    result = run_atlas(problem, region, scheduler="serial", progress=False, n_verify=2)
+    c = result.columns
+    rows = np.flatnonzero(np.isfinite(c["sdm_depth_limit_m"]))
+    assert rows.size == 2 and result.engine["sdm_verified_rows"] == 2
+    assert set(rows) <= set(result.best_row_per_point)
+    for i in rows:
+        q = np.radians([c[f"q{j}_deg"][i] for j in range(1, 7)])
+        model = robot_modal_model(robot, q, min_tip_fraction=problem.min_tip_fraction)
+        rpm = c["spindle_rpm"][i]
+        d = lobe_diagram(model, setup.tool, problem.cut_machine, setup.material.cutting_coefficients,
+                         rpm_range=(rpm, 2 * rpm), rpm=[rpm], method="sdm")
+        assert c["sdm_depth_limit_m"][i] == d.depth_limit_m[0]
+        ap = min(problem.ap_hi_m, problem.margin * d.depth_limit_m[0])
+        assert c["sdm_axial_depth_m"][i] == pytest.approx(ap, rel=1e-12)
+    best = result.best
+    assert best["stability"] == "sdm" and best["sdm_mrr_m3_s"] == np.nanmax(c["sdm_mrr_m3_s"])

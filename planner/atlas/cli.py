@@ -46,6 +46,10 @@ def add_parsers(sub) -> None:
                    help="speed range (default: the setup's limits.spindle_rpm)")
     p.add_argument("--n-rpm", type=int, default=300, help="speeds of the log grid over the range (default 300)")
     p.add_argument("--n-freq", type=int, default=500, help="ZOA chatter frequencies per pose (default 500)")
+    p.add_argument("--method", choices=["auto", "zoa", "sdm"], default="auto",
+                   help="ZOA everywhere; 'sdm' (and 'auto' when ae/D < 0.2) also checks the best rows of the "
+                        "--sdm-verify best positions by semi-discretization")
+    p.add_argument("--sdm-verify", type=int, default=16, help="positions checked by SDM (default 16)")
     p.add_argument("--tool-model", default=None, help="spindle/tool modes (robomill-modal/1), in series")
     p.add_argument("--chunk-points", type=int, default=None, help="positions per task (default: ~1 s of work)")
     p.add_argument("--connect-timeout-s", type=float, default=5.0, help="time a --scheduler has to answer, s")
@@ -63,7 +67,9 @@ def _human(d: dict) -> str:
     if b is not None:
         lines.append(f"best: x {b['x_m']:.3f} y {b['y_m']:.3f} z {b['z_m']:.3f} m, rotation {b['rotation_deg']:.1f} deg, "
                      f"{b['spindle_rpm']:.0f} rpm, ap {b['axial_depth_m'] * 1e3:.2f} mm, "
-                     f"MRR {b['mrr_m3_s'] * 6e7:.1f} cm^3/min ({b['active_constraint']})")
+                     f"MRR {b['mrr_m3_s'] * 6e7:.1f} cm^3/min ({b['active_constraint']})"
+                     + (f"; SDM: limit {b['sdm_depth_limit_m'] * 1e3:.2f} mm, MRR {b['sdm_mrr_m3_s'] * 6e7:.1f} cm^3/min"
+                        if b["stability"] == "sdm" else ""))
     return "\n".join(lines)
 
 
@@ -81,6 +87,8 @@ def cmd_atlas(args: argparse.Namespace) -> int:
         raise UsageError("--workers", "at least 1", str(args.workers))
     if args.chunk_points is not None and args.chunk_points < 1:
         raise UsageError("--chunk-points", "at least 1", str(args.chunk_points))
+    if args.sdm_verify < 0:
+        raise UsageError("--sdm-verify", "at least 0", str(args.sdm_verify))
     if args.rpm is not None and not 0 < args.rpm[0] < args.rpm[1]:
         raise UsageError("--rpm", "0 < MIN < MAX", f"{args.rpm[0]:g} {args.rpm[1]:g}")
     out_dir = Path(args.output)
@@ -102,7 +110,7 @@ def cmd_atlas(args: argparse.Namespace) -> int:
                             n_freq=args.n_freq, tool_model=tool_model)
     result = run_atlas(problem, region, scheduler=args.scheduler, n_workers=args.workers,
                        points_per_chunk=args.chunk_points, progress=not args.no_progress,
-                       connect_timeout_s=args.connect_timeout_s)
+                       connect_timeout_s=args.connect_timeout_s, method=args.method, n_verify=args.sdm_verify)
     table = out_dir / "atlas.parquet"
     figures = {}
     if not args.no_plots:

@@ -26,12 +26,13 @@ from __future__ import annotations
 import logging
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from oma.errors import InputError
 
-__all__ = ["SchedulerError", "run_chunks", "default_workers", "WORKER_ENV"]
+__all__ = ["SchedulerError", "Engine", "open_engine", "run_chunks", "default_workers", "WORKER_ENV"]
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +100,85 @@ def _connect(address: str, timeout_s: float):
                                       f"{type(exc).__name__})") from None
 
 
+class Engine:
+    """An open engine: ``serial``, or a Dask client (on a local cluster it owns, or on a scheduler).
+
+    Use :func:`open_engine`; :meth:`map` runs one batch of chunks (several batches share the
+    cluster, e.g. the atlas and then its SDM verification).
+    """
+
+    def __init__(self, client=None, name: str = "serial"):
+        self.client = client
+        self.name = name
+
+    @property
+    def n_workers(self) -> int:
+        if self.client is None:
+            return 1
+        return max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
+
+    def map(self, fn: Callable[[Any, Any], Any], payload: Any, chunks: Sequence[Any], *, retries: int = 3,
+            progress: bool = True, desc: str = "atlas",
+            on_chunk_done: Callable[[int, int], None] | None = None) -> list:
+        """``[fn(payload, c) for c in chunks]`` (see :func:`run_chunks`)."""
+        from tqdm import tqdm
+
+        total = len(chunks)
+        results: list = [None] * total
+        bar = tqdm(total=total, desc=desc, unit="chunk", file=sys.stderr, disable=not progress, smoothing=0.1)
+        try:
+            if self.client is None:
+                for i, chunk in enumerate(chunks):
+                    results[i] = _call(fn, payload, chunk)
+                    bar.update(1)
+                    if on_chunk_done is not None:
+                        on_chunk_done(i + 1, total)
+                return results
+            from distributed import as_completed
+
+            client = self.client
+            shared = client.scatter(payload, broadcast=True)
+            futures = client.map(_call, [fn] * total, [shared] * total, list(chunks), retries=int(retries),
+                                 pure=False)
+            index = {f.key: i for i, f in enumerate(futures)}
+            done = 0
+            with client.as_current():  # as_completed finds its event loop through the current client
+                completed = as_completed(futures)
+            for future in completed:
+                results[index[future.key]] = future.result()
+                future.release()
+                done += 1
+                bar.update(1)
+                if on_chunk_done is not None:
+                    on_chunk_done(done, total)
+            return results
+        finally:
+            bar.close()
+
+
+@contextmanager
+def open_engine(scheduler: str | None = None, *, n_workers: int | None = None,
+                connect_timeout_s: float = 5.0) -> Iterator[Engine]:
+    """An :class:`Engine` for the block: ``'serial'``, a local cluster (``None``, closed at the end)
+    or a client on the scheduler at ``tcp://HOST:PORT`` (:class:`SchedulerError` if it does not
+    answer within ``connect_timeout_s``)."""
+    if scheduler == "serial":
+        yield Engine()
+        return
+    cluster = None
+    if scheduler is None:
+        cluster = _local_cluster(n_workers)
+        client = cluster.get_client()
+    else:
+        client = _connect(str(scheduler), float(connect_timeout_s))
+    try:
+        yield Engine(client, "local" if cluster is not None else str(scheduler))
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
 def run_chunks(fn: Callable[[Any, Any], Any], payload: Any, chunks: Sequence[Any], *,
                scheduler: str | None = None, n_workers: int | None = None, retries: int = 3,
                progress: bool = True, desc: str = "atlas", connect_timeout_s: float = 5.0,
@@ -139,49 +219,9 @@ def run_chunks(fn: Callable[[Any, Any], Any], payload: Any, chunks: Sequence[Any
     SchedulerError
         ``scheduler`` does not answer.
     """
-    from tqdm import tqdm
-
-    total = len(chunks)
-    results: list = [None] * total
-    bar = tqdm(total=total, desc=desc, unit="chunk", file=sys.stderr, disable=not progress, smoothing=0.1)
-    try:
-        if scheduler == "serial":
-            for i, chunk in enumerate(chunks):
-                results[i] = _call(fn, payload, chunk)
-                bar.update(1)
-                if on_chunk_done is not None:
-                    on_chunk_done(i + 1, total)
-            return results
-        from distributed import as_completed
-
-        cluster = None
-        if scheduler is None:
-            cluster = _local_cluster(n_workers)
-            client = cluster.get_client()
-        else:
-            client = _connect(str(scheduler), float(connect_timeout_s))
-        try:
-            shared = client.scatter(payload, broadcast=True)
-            futures = client.map(_call, [fn] * total, [shared] * total, list(chunks), retries=int(retries),
-                                 pure=False)
-            index = {f.key: i for i, f in enumerate(futures)}
-            done = 0
-            with client.as_current():  # as_completed finds its event loop through the current client
-                completed = as_completed(futures)
-            for future in completed:
-                results[index[future.key]] = future.result()
-                future.release()
-                done += 1
-                bar.update(1)
-                if on_chunk_done is not None:
-                    on_chunk_done(done, total)
-            return results
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    finally:
-        bar.close()
+    with open_engine(scheduler, n_workers=n_workers, connect_timeout_s=connect_timeout_s) as engine:
+        return engine.map(fn, payload, chunks, retries=retries, progress=progress, desc=desc,
+                          on_chunk_done=on_chunk_done)
 
 
 def _local_cluster(n_workers: int | None):

@@ -53,6 +53,14 @@ class AtlasProblem:
     min_tip_fraction: float = 1e-3
     singularity_threshold: float = 1e-3
     tool_modes: dict | None = None
+    tool: object = None  # oma.cutting.Tool
+    cut_machine: object = None  # oma.cutting.Cut, directions in the machine frame
+    coefficients: object = None  # oma.cutting.CuttingCoefficients
+
+    @property
+    def immersion(self) -> float:
+        """Radial immersion ``ae / D``."""
+        return float(self.cut_machine.radial_depth_m) / float(self.tool.diameter_m)
 
     def to_dict(self) -> dict:
         return {"tool_axis": self.tool_axis.tolist(), "feed_direction": self.feed_direction.tolist(),
@@ -102,6 +110,7 @@ def build_problem(robot, setup, region, *, setup_file=None, rpm_range=None, n_rp
         A setup without the limits the atlas needs, without cutting coefficients, or a robot without
         joint stiffness.
     """
+    from oma.cutting import Cut
     from planner.cut_model import CutModel
     from stability.oriented import average_directional_matrix
 
@@ -149,4 +158,5 @@ def build_problem(robot, setup, region, *, setup_file=None, rpm_range=None, n_rp
         ap_hi_m=float(bounds[code]), ap_hi_code=int(code), power_depth_rpm=power, margin=margin,
         mrr_per_depth_rpm=float(cut.radial_depth_m) * fz * tool.teeth / 60.0, torque_per_depth_N=float(tau),
         n_freq=int(n_freq), min_tip_fraction=float(min_tip_fraction),
-        singularity_threshold=float(singularity_threshold), tool_modes=tool_modes)
+        singularity_threshold=float(singularity_threshold), tool_modes=tool_modes, tool=tool,
+        cut_machine=Cut(fz, float(cut.radial_depth_m), cut.milling, frame[0], frame[1]), coefficients=coef)

@@ -18,10 +18,11 @@ import numpy as np
 
 from oma._arrays import readonly as _ro
 
-from .engine import run_chunks
+from .engine import open_engine
 from .evaluate import COLUMNS, CONSTRAINT_NAMES, evaluate_chunk
 from .grid import Region, RegionError
 from .problem import AtlasProblem
+from .verify import sdm_chunk, sdm_cut
 
 __all__ = ["AtlasResult", "run_atlas", "chunk_points", "SECONDS_PER_GROUP"]
 
@@ -130,21 +131,49 @@ def best_rows(columns, n_points: int, n_rot: int) -> np.ndarray:
     return best
 
 
-def _row_dict(columns, i: int) -> dict:
-    out = {}
+def _row_dict(columns, i: int, *, sdm: bool = False) -> dict:
+    out = {"stability": "sdm" if sdm else "zoa"}
     for name in ("point", "x_m", "y_m", "z_m", "rotation_deg", "branch", "q1_deg", "q2_deg", "q3_deg", "q4_deg",
                  "q5_deg", "q6_deg", "joint_limit_distance_deg", "singularity_measure", "lowest_mode_hz",
                  "dominant_mode_hz", "min_depth_limit_m", "spindle_rpm", "depth_limit_m", "axial_depth_m",
                  "feed_per_tooth_m", "mrr_m3_s", "mean_torque_N_m", "power_W", "stability_reserve",
-                 "active_constraint"):
+                 "active_constraint", "sdm_depth_limit_m", "sdm_axial_depth_m", "sdm_mrr_m3_s"):
         v = columns[name][i]
         out[name] = v.item() if hasattr(v, "item") else v
     return out
 
 
+def _assemble(parts, local, region, n_rot):
+    """The table from the chunks' columns (in chunk order) and each position's best row."""
+    n = local.shape[0]
+    columns = {"point": np.repeat(np.arange(n), n_rot)}
+    for j, axis in enumerate(("x_m", "y_m", "z_m")):
+        columns[axis] = np.repeat(local[:, j], n_rot)
+    for name in COLUMNS:
+        columns[name] = np.concatenate([p[name] for p in parts])
+    if not np.any(columns["reachable"]):
+        raise RegionError("--box-m", "a region the robot reaches with the setup's tool axis",
+                          f"none of the {n} positions at any of the {n_rot} rotations "
+                          f"({region.lower_m.tolist()} .. {region.upper_m.tolist()} m)")
+    codes = columns["active_constraint"]
+    columns["active_constraint"] = np.array([CONSTRAINT_NAMES[int(c)] for c in codes], dtype=object)
+    for name in ("sdm_depth_limit_m", "sdm_axial_depth_m", "sdm_mrr_m3_s"):
+        columns[name] = np.full(n * n_rot, np.nan)
+    return columns, best_rows(columns, n, n_rot)
+
+
+def _top_rows(columns, best_rows_, n_verify: int) -> np.ndarray:
+    """The best rows of the ``n_verify`` best positions (by :func:`_keys`)."""
+    cand = best_rows_[best_rows_ >= 0]
+    _, keys = _keys(columns, cand)
+    order = np.lexsort((cand,) + tuple(-k for k in reversed(keys)))
+    return np.sort(cand[order[:max(0, n_verify)]])
+
+
 def run_atlas(problem: AtlasProblem, region: Region, *, scheduler: str | None = None, n_workers: int | None = None,
               points_per_chunk: int | None = None, target_task_s: float = 1.0, progress: bool = True,
-              connect_timeout_s: float = 5.0, on_chunk_done=None) -> AtlasResult:
+              connect_timeout_s: float = 5.0, on_chunk_done=None, method: str = "auto",
+              n_verify: int = 16, sdm_below_immersion: float = 0.2) -> AtlasResult:
     """Evaluate the atlas of ``problem`` over ``region``.
 
     Parameters
@@ -165,6 +194,14 @@ def run_atlas(problem: AtlasProblem, region: Region, *, scheduler: str | None = 
         See :func:`run_chunks`.
     on_chunk_done : callable, optional
         See :func:`run_chunks`.
+    method : {'auto', 'zoa', 'sdm'}
+        ``'sdm'``: the best rows of the ``n_verify`` best positions are checked by
+        semi-discretization (:mod:`planner.atlas.verify`); ``'auto'``: so when ``ae / D`` is below
+        ``sdm_below_immersion`` (as ``robomill plan --method auto``); ``'zoa'``: never.
+    n_verify : int
+        Positions whose best row is checked by SDM.
+    sdm_below_immersion : float
+        See ``method``.
 
     Returns
     -------
@@ -183,32 +220,45 @@ def run_atlas(problem: AtlasProblem, region: Region, *, scheduler: str | None = 
                                                                         target_task_s=target_task_s)
     if size < 1:
         raise RegionError("--chunk-points", "a positive number of positions per task", repr(points_per_chunk))
+    if method not in ("auto", "zoa", "sdm"):
+        raise RegionError("--method", "one of 'auto', 'zoa', 'sdm'", repr(method))
+    use_sdm = method == "sdm" or (method == "auto" and problem.immersion < sdm_below_immersion)
     chunks = [machine[i:i + size] for i in range(0, n, size)]
-    parts = run_chunks(evaluate_chunk, problem, chunks, scheduler=scheduler, n_workers=n_workers,
-                       progress=progress, connect_timeout_s=connect_timeout_s, on_chunk_done=on_chunk_done)
-    columns = {"point": np.repeat(np.arange(n), n_rot)}
-    for j, axis in enumerate(("x_m", "y_m", "z_m")):
-        columns[axis] = np.repeat(local[:, j], n_rot)
-    for name in COLUMNS:
-        columns[name] = np.concatenate([p[name] for p in parts])
-    reach = columns["reachable"]
-    if not np.any(reach):
-        raise RegionError("--box-m", "a region the robot reaches with the setup's tool axis",
-                         f"none of the {n} positions at any of the {n_rot} rotations "
-                         f"({region.lower_m.tolist()} .. {region.upper_m.tolist()} m)")
-    codes = columns["active_constraint"]
-    columns["active_constraint"] = np.array([CONSTRAINT_NAMES[int(c)] for c in codes], dtype=object)
-    best_rows_ = best_rows(columns, n, n_rot)
+    with open_engine(scheduler, n_workers=n_workers, connect_timeout_s=connect_timeout_s) as engine:
+        parts = engine.map(evaluate_chunk, problem, chunks, progress=progress, on_chunk_done=on_chunk_done)
+        columns, best_rows_ = _assemble(parts, local, region, n_rot)
+        verified = np.zeros(0, dtype=np.int64)
+        if use_sdm and np.any(best_rows_ >= 0):
+            verified = _top_rows(columns, best_rows_, int(n_verify))
+            q = np.radians(np.column_stack([columns[f"q{j}_deg"][verified] for j in range(1, 7)]))
+            rows = np.column_stack([q, columns["spindle_rpm"][verified]])
+            res = engine.map(sdm_chunk, problem, [rows[i:i + 1] for i in range(rows.shape[0])], progress=progress,
+                             desc="atlas: SDM")
+            res = np.vstack(res)
+            columns["sdm_depth_limit_m"][verified] = res[:, 0]
+            ap, mrr = sdm_cut(problem, columns["spindle_rpm"][verified], res[:, 0])
+            columns["sdm_axial_depth_m"][verified] = ap
+            columns["sdm_mrr_m3_s"][verified] = mrr
     best = None
-    if np.any(best_rows_ >= 0):
+    if verified.size:
+        keys = _keys({"mrr_m3_s": columns["sdm_mrr_m3_s"][verified],
+                      "stability_reserve": problem.margin * columns["sdm_depth_limit_m"][verified]
+                      / columns["sdm_axial_depth_m"][verified],
+                      "min_depth_limit_m": columns["min_depth_limit_m"][verified]})[1]
+        if np.isfinite(columns["sdm_mrr_m3_s"][verified]).any():
+            i = int(verified[np.lexsort((verified,) + tuple(-k for k in reversed(keys)))[0]])
+            best = _row_dict(columns, i, sdm=True)
+    elif np.any(best_rows_ >= 0):
         cand = best_rows_[best_rows_ >= 0]
         _, keys = _keys(columns, cand)
         i = int(cand[np.lexsort((cand,) + tuple(-k for k in reversed(keys)))[0]])
         best = _row_dict(columns, i)
+    if best is not None:
         best["position_m"] = [best["x_m"], best["y_m"], best["z_m"]]
         best["position_machine_m"] = region.to_machine(np.array(best["position_m"])[None])[0].tolist()
     engine = {"scheduler": "local" if scheduler is None else str(scheduler), "chunks": len(chunks),
-              "points_per_chunk": size, "wall_s": time.perf_counter() - t0}
+              "points_per_chunk": size, "wall_s": time.perf_counter() - t0,
+              "stability": "zoa, sdm at the best rows" if use_sdm else "zoa", "sdm_verified_rows": int(verified.size)}
     return AtlasResult(columns={k: (v if v.dtype == object else _ro(v, v.dtype)) for k, v in columns.items()},
                        region=region, problem=problem.to_dict(), best_row_per_point=_ro(best_rows_, np.int64),
                        best=best, engine=engine)
