@@ -83,6 +83,17 @@ def case_target(repeat):
     return w
 
 
+def _cpu_s():
+    t = os.times()
+    return t.user + t.system
+
+
+def _rss_mb():
+    import psutil
+
+    return psutil.Process().memory_info().rss / 2**20
+
+
 def case_scaling(repeat, n_points):
     from distributed import LocalCluster
 
@@ -100,12 +111,18 @@ def case_scaling(repeat, n_points):
             run_atlas(warm_problem, warm_region, scheduler=cluster.scheduler_address, progress=False,
                       points_per_chunk=1)  # imports and numba caches loaded in every worker
             walls = []
+            client = cluster.get_client()
             for _ in range(repeat):
                 load = _load()
+                cpu0 = sum(client.run(_cpu_s).values())
                 t0 = time.perf_counter()
                 run_atlas(problem, region, scheduler=cluster.scheduler_address, progress=False)
                 walls.append(time.perf_counter() - t0)
-                print(f"  {workers} worker(s): {walls[-1]:.1f} s [{load} -> {_load()}]", flush=True)
+                cpu = sum(client.run(_cpu_s).values()) - cpu0
+                rss = max(client.run(_rss_mb).values())
+                print(f"  {workers} worker(s): {walls[-1]:.1f} s wall, {cpu:.1f} s CPU in the workers "
+                      f"({cpu / (region.n_points * region.rotations_deg.size) * 1e6:.0f} us per row), "
+                      f"largest worker RSS {rss:.0f} MB [{load} -> {_load()}]", flush=True)
         finally:
             cluster.close()
         rows[workers] = statistics.median(walls)

@@ -142,3 +142,20 @@ def test_demo_section(tmp_path):
     assert report.summary["atlas"]["best"] == result.best and result.best["active_constraint"] == "stability"
     # the best placement is the largest MRR of the table
     assert result.best["mrr_m3_s"] == np.nanmax(result.columns["mrr_m3_s"])
+
+
+def test_cli_writes_table_figures_and_json(robot, tmp_path, capsys):
+    import json
+
+    from planner.atlas.io import read_table
+
+    out = tmp_path / "out"
+    code, stdout, err = _run([robot, SETUP, "-o", out, "--box-m", 1.8, -0.3, 0.6, 2.1, 0.3, 0.6, "--step-m", 0.3,
+                              "--rotations-deg", 0, 90], capsys)
+    assert code == 0, err
+    d = json.loads(stdout)
+    assert d["points"] == 6 and d["table"] == str(out / "atlas.parquet")
+    assert set(d["best"]) >= {"position_m", "rotation_deg", "mrr_m3_s", "spindle_rpm", "axial_depth_m"}
+    cols, meta = read_table(d["table"])
+    assert cols["mrr_m3_s"].size == 12 and meta["best"] == d["best"]
+    assert sorted(p.name for p in out.iterdir()) == ["atlas.parquet", "atlas_mrr.png", "atlas_rotation.png"]

@@ -116,7 +116,7 @@ def test_distributed_run_equals_serial(cluster, robot, tmp_path, capsys):
 
     assert _atlas(robot, tmp_path / "serial", "--scheduler", "serial", "--no-plots") == 0
     serial = json.loads(capsys.readouterr().out)
-    assert _atlas(robot, tmp_path / "dask", "--scheduler", cluster.address, "--chunk-points", "3") == 0
+    assert _atlas(robot, tmp_path / "dask", "--scheduler", cluster.address, "--chunk-points", "3", "--no-plots") == 0
     dist = json.loads(capsys.readouterr().out)
     assert dist["engine"]["chunks"] > 4  # several tasks, shared by the two workers
     a, meta = read_table(serial["table"])
@@ -124,8 +124,7 @@ def test_distributed_run_equals_serial(cluster, robot, tmp_path, capsys):
     assert same_table(a, b)  # bit for bit
     assert dist["best"] == serial["best"] and dist["points"] == serial["points"] == 40
     assert meta["format"] == "robomill-atlas/1"
-    for path in dist["figures"].values():
-        assert Path(path).stat().st_size > 10_000
+    assert dist["figures"] == {}  # figures: test_atlas_cli.py::test_demo_section
     assert "x_m" in a and "mrr_m3_s" in a and "depth_limit_m" in a  # units in the column names
 
 

@@ -139,7 +139,8 @@ def _row_dict(columns, i: int, *, sdm: bool = False) -> dict:
                  "feed_per_tooth_m", "mrr_m3_s", "mean_torque_N_m", "power_W", "stability_reserve",
                  "active_constraint", "sdm_depth_limit_m", "sdm_axial_depth_m", "sdm_mrr_m3_s"):
         v = columns[name][i]
-        out[name] = v.item() if hasattr(v, "item") else v
+        v = v.item() if hasattr(v, "item") else v
+        out[name] = None if isinstance(v, float) and math.isnan(v) else v  # NaN: not computed
     return out
 
 
