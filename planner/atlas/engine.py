@@ -111,12 +111,6 @@ class Engine:
         self.client = client
         self.name = name
 
-    @property
-    def n_workers(self) -> int:
-        if self.client is None:
-            return 1
-        return max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
-
     def map(self, fn: Callable[[Any, Any], Any], payload: Any, chunks: Sequence[Any], *, retries: int = 3,
             progress: bool = True, desc: str = "atlas",
             on_chunk_done: Callable[[int, int], None] | None = None) -> list:
