@@ -251,7 +251,7 @@ def _cmd_demo(args) -> int:
 
 #: Command groups that live in their own sub-package; each module has ``add_parsers(sub)``, which
 #: adds its subcommands (with ``handler`` defaults) to the ``robomill`` subparsers.
-COMMAND_GROUPS: tuple[str, ...] = ("planner.robot.cli", "planner.robot.posture_cli")
+COMMAND_GROUPS: tuple[str, ...] = ("planner.robot.cli", "planner.robot.posture_cli", "planner.atlas.cli")
 
 
 def build_parser() -> argparse.ArgumentParser:
