@@ -273,9 +273,10 @@ def _step_check(example: Example, report: Report) -> None:
 _ROBOT_BAND_HZ = 200.0
 
 
-def _step_robot(example: Example, report: Report) -> None:
+def _step_robot(example: Example, report: Report):
     """The robot as the model: calibrate it on the six identified poses, check the path with it,
-    choose the posture, and map the lowest tool-tip mode over the working region."""
+    choose the posture, and map the lowest tool-tip mode over the working region. Returns the
+    calibrated robot."""
     from oma.modal import ModalModel
     from planner.check import check_toolpath
     from planner.robot import read_robot
@@ -351,6 +352,20 @@ def _step_robot(example: Example, report: Report) -> None:
         "check_after_posture_counts": after.counts(), "unreachable": list(posture.unreachable),
         "lowest_mode_hz_range": [float(finite.min()), float(finite.max())] if finite.size else None,
     }
+    return robot
+
+
+#: The atlas of the demo sweeps the low speeds, where a robot's own modes limit the cut (DOMAIN.md:
+#: at the top of the example's range the 8 kW spindle, not chatter, sets the removal rate anywhere).
+_ATLAS_RPM = (1000.0, 6000.0)
+
+
+def _step_atlas(example: Example, report: Report, robot) -> None:
+    """Where in the cell, and at which rotation about the tool axis, to cut: a small atlas of the
+    calibrated robot (serial; ``robomill atlas`` runs the same on a Dask cluster)."""
+    from planner.atlas import demo_section
+
+    demo_section(report, robot, example.setup, report.directory, tool_model=example.tool_mode, rpm_range=_ATLAS_RPM)
 
 
 def run_demo(output: Path, *, example_dir: Path = EXAMPLE_DIR, progress: bool = True) -> dict:
@@ -361,10 +376,12 @@ def run_demo(output: Path, *, example_dir: Path = EXAMPLE_DIR, progress: bool = 
     t0 = time.perf_counter()
     example = load_example(example_dir)
     report = Report("robomill demo: KR500 milling acetal (simulated example cell)", output)
-    steps = [_step_records, _step_identify, _step_shortcuts, _step_lobes, _step_plan, _step_check, _step_robot]
+    steps = [_step_records, _step_identify, _step_shortcuts, _step_lobes, _step_plan, _step_check]
     for step in steps:
         log.info("demo: %s", step.__name__)
         step(example, report)
+    log.info("demo: _step_robot, _step_atlas")
+    _step_atlas(example, report, _step_robot(example, report))
     report.summary["elapsed_s"] = time.perf_counter() - t0
     path = report.write()
     report.summary["report"] = str(path)
