@@ -46,16 +46,18 @@ measured force; process damping by the closed-loop spectrum.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import optimize
 
+from oma.cutting import CuttingCoefficients
 from oma.modal import ModalModel
-from stability.simulate import Effects, ForceSensorDynamics, NonlinearCutting, ProcessDamping, Runout
+from stability.simulate import Effects, ForceSensorDynamics, NonlinearCutting, ProcessDamping
 
 from .compare import Parts, align_angle, rotate
-from .forcemodel import sensor_gain
+from .coefficients import coefficient_bounds, coefficient_start, expand, standard_errors, _units
+from .forcemodel import ToothRadiiRunout, sensor_gain
 from .response import Delayer, modal_response, unit_mode_response
 
 __all__ = ["Extension", "CANDIDATES", "fit_candidate"]
@@ -211,30 +213,40 @@ def _harmonic_evidence(parts: Parts, prediction) -> dict:
 
 
 def fit_runout(parts: Parts) -> Extension:
+    """Runout in a form-free way: a radius offset per tooth (their mean is no runout), fitted to
+    the force harmonics. An eccentric tool axis is the special case ``rho_j = A cos(phase - 2 pi
+    j / N)``; unequal tooth radii are any other pattern. With two teeth only ``rho_0 - rho_1``
+    acts; the amplitude reported is half the spread of the radii, ``(max rho - min rho) / 2``
+    (the eccentric axis's ``A |cos(phase)|`` for two teeth)."""
     teeth = int(parts.views[0].tool.teeth)
     if teeth < 2:
         return _failed("runout", "force", "a single tooth has no runout signature")
-    j = np.arange(teeth)
-    two = teeth == 2
     scale = 1e-5  # parameters in units of 10 um
+    n_par = teeth - 1
 
-    def increments(x):
-        rc = x[0] * scale
-        rs = 0.0 if two else x[1] * scale
-        rho = rc * np.cos(2 * np.pi * j / teeth) + rs * np.sin(2 * np.pi * j / teeth)
-        return rho - np.roll(rho, -1)
+    def radii(x):
+        rho = np.zeros(teeth)
+        rho[1:] = -np.asarray(x) * scale  # tooth 0 is the reference; teeth 1.. sit x lower
+        return rho - rho.mean()
 
     def predict(x, i):
-        return parts.force.analytic(i, chip_increments_m=increments(x))
+        rho = radii(x)
+        return parts.force.analytic(i, chip_increments_m=rho - np.roll(rho, -1))
 
-    n_par = 1 if two else 2
-    x, res = _fit_force(parts, predict, np.full(n_par, 0.5), np.full(n_par, -20.0), np.full(n_par, 20.0))
-    rc = x[0] * scale
-    rs = 0.0 if two else x[1] * scale
-    amp, phase = math.hypot(rc, rs), math.atan2(rs, rc)
-    effects = Effects(runout=Runout(amp, phase))
+    starts = [np.full(n_par, 0.5), np.full(n_par, -0.5)]
+    x, res = _fit_force(parts, predict, starts[0], np.full(n_par, -20.0), np.full(n_par, 20.0), starts=starts)
+    rho = radii(x)
+    amp = float(np.max(rho) - np.min(rho)) / 2.0
+    try:
+        sig = standard_errors(res, n_par) * scale
+        # half the spread moves by half an offset's standard error (exact for two teeth)
+        amp_sigma = float(np.max(sig)) / 2.0
+    except np.linalg.LinAlgError:  # pragma: no cover
+        amp_sigma = float("inf")
+    effects = Effects(runout=ToothRadiiRunout(0.0, 0.0, tuple(float(r) for r in rho)))
     pred = [parts.force.simulate(v, effects) for v in parts.views]
-    params = {"runout_amplitude_m": amp, "runout_phase_rad": phase}
+    params = {"runout_amplitude_m": amp, "runout_amplitude_m_sigma": amp_sigma,
+              "tooth_radius_offsets_m": [float(r) for r in rho]}
     return Extension("runout", "force", params, bool(res.success), str(res.message), pred, None, effects,
                      _harmonic_evidence(parts, pred))
 
@@ -285,28 +297,50 @@ def fit_force_sensor(parts: Parts) -> Extension:
 
 
 def fit_nonlinear(parts: Parts) -> Extension:
+    """Size effect ``K ~ (h / h_ref)^-p`` fitted together with the cutting coefficients (Ktc, Krc,
+    Kac, an edge scale; :mod:`~planner.diagnosis.coefficients`), so that ``p`` measures the shape
+    of the force pulse the linear-plus-edge model cannot take, whatever the law's exact form (a
+    saturating law comes out as its mean log-slope over the chips of the cut)."""
     feeds = sorted({float(v.cut.feed_per_tooth_m) for v in parts.views})
     h0 = float(parts.views[0].cut.feed_per_tooth_m)
-    if len(feeds) == 1:
-        # one feed: the linear coefficients are taken as right at that feed (the simulator's
-        # default reference chip); the size effect shows in the shape of the force pulse
-        def predict(x, i):
-            return parts.force.analytic(i, exponent_p=float(x[0]), reference_chip_m=h0)
+    base = parts.views[0].coefficients
+    units = _units(parts.views[0], base)
+    c0 = coefficient_start(base, units)
+    c_lo, c_hi = coefficient_bounds(c0)
 
-        x, res = _fit_force(parts, predict, np.array([0.2]), np.array([-0.5]), np.array([0.9]))
-        p, href = float(x[0]), h0
+    def coef(xc):
+        return CuttingCoefficients(*[float(v) for v in expand(xc, base, units) * units])
+
+    several = len(feeds) > 1
+    if not several:
+        # one feed: the coefficients hold at that feed (the simulator's default reference chip)
+        def predict(x, i):
+            return parts.force.analytic(i, coefficients=coef(x[1:]), exponent_p=float(x[0]), reference_chip_m=h0)
+
+        x0, lo, hi = np.concatenate([[0.2], c0]), np.concatenate([[-0.5], c_lo]), np.concatenate([[0.9], c_hi])
     else:
         # several feeds: where the linear coefficients hold is a second unknown
         def predict(x, i):
-            return parts.force.analytic(i, exponent_p=float(x[0]), reference_chip_m=h0 * math.exp(x[1]))
+            return parts.force.analytic(i, coefficients=coef(x[2:]), exponent_p=float(x[0]),
+                                        reference_chip_m=h0 * math.exp(x[1]))
 
-        lo = math.log(0.2 * feeds[0] / h0)
-        hi = math.log(5.0 * feeds[-1] / h0)
-        x, res = _fit_force(parts, predict, np.array([0.2, 0.0]), np.array([-0.5, lo]), np.array([0.9, hi]))
-        p, href = float(x[0]), h0 * math.exp(float(x[1]))
+        x0 = np.concatenate([[0.2, 0.0], c0])
+        lo = np.concatenate([[-0.5, math.log(0.2 * feeds[0] / h0)], c_lo])
+        hi = np.concatenate([[0.9, math.log(5.0 * feeds[-1] / h0)], c_hi])
+    starts = [x0, np.concatenate([[0.0], x0[1:]])]
+    x, res = _fit_force(parts, predict, x0, lo, hi, starts=starts)
+    p = float(x[0])
+    href = h0 * math.exp(float(x[1])) if several else h0
+    cf = coef(x[2:] if several else x[1:])
+    try:
+        p_sigma = float(standard_errors(res, 1)[0])
+    except np.linalg.LinAlgError:  # pragma: no cover
+        p_sigma = float("inf")
     effects = Effects(nonlinear_cutting=NonlinearCutting(p, href))
-    pred = [parts.force.simulate(v, effects) for v in parts.views]
-    params = {"exponent_p": p, "reference_chip_m": href}
+    pred = [parts.force.simulate(replace(v, coefficients=cf), effects) for v in parts.views]
+    params = {"exponent_p": p, "exponent_p_sigma": p_sigma, "reference_chip_m": href,
+              "coefficients": {f: float(getattr(cf, f)) for f in ("Ktc_N_m2", "Krc_N_m2", "Kac_N_m2",
+                                                                  "Kte_N_m", "Kre_N_m", "Kae_N_m")}}
     return Extension("nonlinear_cutting", "force", params, bool(res.success), str(res.message), pred, None,
                      effects, _harmonic_evidence(parts, pred))
 
@@ -537,37 +571,78 @@ def _drift_segments(n, fs, segment_s=0.05):
 
 
 def fit_pose_drift(parts: Parts) -> Extension:
+    """Natural frequencies that change along the record, in two forms fitted on the fit half: a
+    gradual drift ``s0 (1 + r t / T)`` and a step ``s0 (1 + r [t >= t_s])`` (the arm crossing a
+    joint's backlash or a configuration change); the form that fits the fit half better predicts
+    the validation half (a ramp extrapolates, a step stays). ``relative_change`` is the change over
+    the record of the form chosen. A step inside the validation half leaves nothing to fit."""
     st = parts.structure
     if not st.views:
         return _failed("pose_drift", "structure", "no displacement")
 
-    def scale(x, mids, duration):
-        return (1.0 + x[0]) * (1.0 + x[1] * mids / duration)
+    def segments(v, n, t_step):
+        """Segment starts and the scale's time argument: 50 ms segments for a ramp, two for a step."""
+        if t_step is None:
+            return _drift_segments(n, v.sample_rate_hz)
+        k = int(round(t_step * v.sample_rate_hz))
+        return (np.array([0, k]), np.array([0.0, t_step])) if 0 < k < n else (np.array([0]), np.array([0.0]))
 
-    def fun(x):
-        out = []
-        for i, v in enumerate(st.views):
-            n = v.n_samples
-            starts, mids = _drift_segments(n, v.sample_rate_hz)
-            keep = starts < v.split
-            pred = np.full((3, n), np.nan)
-            pred[:, :v.split] = modal_response(st.model, v.force[:, :v.split], v.sample_rate_hz,
-                                               frequency_scale=scale(x, mids[keep], n / v.sample_rate_hz),
-                                               segment_starts=starts[keep])
-            out.append(st.fit_residual(i, pred))
-        return np.concatenate(out)
+    def scale(x, mids, duration, t_step):
+        if t_step is None:
+            return (1.0 + x[0]) * (1.0 + x[1] * mids / duration)
+        return (1.0 + x[0]) * (1.0 + x[1] * (mids >= t_step))
 
+    def make_fun(t_step):
+        def fun(x):
+            out = []
+            for i, v in enumerate(st.views):
+                n = v.n_samples
+                starts, mids = segments(v, n, t_step)
+                keep = starts < v.split
+                pred = np.full((3, n), np.nan)
+                pred[:, :v.split] = modal_response(st.model, v.force[:, :v.split], v.sample_rate_hz,
+                                                   frequency_scale=scale(x, mids[keep], n / v.sample_rate_hz,
+                                                                         t_step),
+                                                   segment_starts=starts[keep])
+                out.append(st.fit_residual(i, pred))
+            return np.concatenate(out)
+        return fun
+
+    bounds = dict(lower=[-0.5, -0.6], upper=[0.5, 0.6])
     grid = np.linspace(-0.3, 0.3, 9)
+    fun = make_fun(None)
     costs = np.array([_sumsq(fun([0.0, g])) for g in grid])
     x0 = [0.0, float(grid[int(np.argmin(costs))])]
-    x, _, _, ok = _levenberg_marquardt(fun, x0, step=1e-4, lower=[-0.5, -0.6], upper=[0.5, 0.6], max_iter=20)
+    x, cost, _, ok = _levenberg_marquardt(fun, x0, step=1e-4, max_iter=20, **bounds)
+    t_step = None
+    # the step: its time and sign on a grid over the fit half (of the shortest record), then its
+    # size by Levenberg-Marquardt, then the time refined
+    v0 = min(st.views, key=lambda v: v.split)
+    t_fit = v0.split / v0.sample_rate_hz
+    trials = [(_sumsq(make_fun(float(ts))([0.0, g])), float(ts), g)
+              for ts in np.linspace(0.1, 0.9, 9) * t_fit for g in (-0.08, 0.08)]
+    c_s, ts, g0 = min(trials)
+    if c_s < cost:
+        xs, cs, _, oks = _levenberg_marquardt(make_fun(ts), [0.0, g0], step=1e-4, max_iter=12, **bounds)
+        if cs < cost:
+            x, cost, ok, t_step = xs, cs, oks, ts
+            for tr in ts + np.linspace(-0.1, 0.1, 9) * t_fit:
+                if not 0 < tr < t_fit:
+                    continue
+                xr, cr, _, okr = _levenberg_marquardt(make_fun(float(tr)), x, step=1e-4, max_iter=4, **bounds)
+                if cr < cost:
+                    x, cost, ok, t_step = xr, cr, okr, float(tr)
     pred = []
     for v in st.views:
         n = v.n_samples
-        starts, mids = _drift_segments(n, v.sample_rate_hz)
+        starts, mids = segments(v, n, t_step)
         pred.append(modal_response(st.model, v.force, v.sample_rate_hz,
-                                   frequency_scale=scale(x, mids, n / v.sample_rate_hz), segment_starts=starts))
-    params = {"relative_change": float(x[1]), "initial_frequency_scale": float(1.0 + x[0])}
+                                   frequency_scale=scale(x, mids, n / v.sample_rate_hz, t_step),
+                                   segment_starts=starts))
+    params = {"relative_change": float(x[1]), "initial_frequency_scale": float(1.0 + x[0]),
+              "form": "gradual" if t_step is None else "step"}
+    if t_step is not None:
+        params["step_time_s"] = t_step
     return Extension("pose_drift", "structure", params, bool(ok), "Levenberg-Marquardt", pred, None, None,
                      {"kind": "drift", "grid_relative_change": grid, "grid_cost": costs})
 
