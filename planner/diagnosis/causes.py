@@ -8,19 +8,20 @@ the diagnosis scores against the baseline.
 ========================  =========  ==============================================================
 cause                     part       extension, fit, parameters
 ========================  =========  ==============================================================
-runout                    force      tooth radii ``R + A cos(phase - 2 pi j / N)``; harmonics of the
+runout                    force      one radius offset per tooth (form-free: an eccentric axis and
+                                     unequal radii are both patterns of offsets); harmonics of the
                                      rigid-tool force (:func:`~planner.diagnosis.forcemodel.
-                                     analytic_harmonics`) fitted by weighted least squares. With two
-                                     teeth only ``A cos(phase)`` acts: reported as the amplitude
-                                     with phase 0 or pi.
+                                     analytic_harmonics`) fitted by weighted least squares. Reported:
+                                     half the spread of the radii (with two teeth only
+                                     ``rho_0 - rho_1`` acts: ``A |cos(phase)|`` of an eccentric axis).
 force_sensor_dynamics     force      measured = ``w^2 / (s^2 + 2 zeta w s + w^2)`` x true force;
                                      the resonance multiplies the predicted harmonics. Frequency
-                                     and damping, multi-start least squares.
-nonlinear_cutting         force      size effect ``K ~ (h / h_ref)^-p``: the shape of the force pulse,
-                                     i.e. the mean force and the harmonics relative to each other.
-                                     One record (one feed) suffices, with ``h_ref`` its feed per
-                                     tooth (the linear coefficients taken as right there); with
-                                     records at two or more feeds ``h_ref`` is fitted too.
+                                     and damping (with the coefficients free again), multi-start
+                                     least squares.
+nonlinear_cutting         force      size effect ``K ~ (h / h_ref)^-p`` fitted with the coefficients
+                                     free: the shape of the force pulse the linear-plus-edge model
+                                     cannot take, whatever the law's form. ``h_ref`` is the first
+                                     record's feed per tooth (the fitted coefficients hold there).
 channel_delay             structure  displacement read at ``t - delay``; 1-D search (+-100 ms).
 unmodeled_mode            structure  one more mode ``u u^T / (k (1 - r^2 + 2 i zeta r))``: for each
                                      trial ``(f_n, zeta)`` the symmetric matrix ``u u^T / k`` is
@@ -28,16 +29,17 @@ unmodeled_mode            structure  one more mode ``u u^T / (k (1 - r^2 + 2 i z
 cross_coupling            structure  one mode's direction turned (two angles), its stiffness kept;
                                      the mode that gains most.
 pose_drift                structure  every natural frequency scaled by ``s0 (1 + r t / T)`` along
-                                     the record (mass and damping ratio kept); ``r`` is the relative
-                                     change over the record. Fitted on the first half, it
-                                     extrapolates into the second.
+                                     the record (mass and damping ratio kept), or by a step ``s0 (1
+                                     + r [t >= t_s])``; ``r`` is the relative change over the record.
+                                     The form that fits the first half better predicts the second.
 process_damping           stability  ``C`` of Budak & Tunc's flank force in the closed-loop force
                                      spectrum (:mod:`~planner.diagnosis.closedloop`), refined on
-                                     the force harmonics (simulated) where the forced vibration
-                                     carries it.
+                                     the force harmonics (simulated, the coefficients re-adjusted
+                                     at each trial) where the forced vibration carries it.
 ========================  =========  ==============================================================
 
-Force candidates are validated with the time-domain simulator
+Every candidate is fitted on top of the re-fitted cutting coefficients
+(:mod:`~planner.diagnosis.coefficients`), the baseline it must beat. Force candidates are validated with the time-domain simulator
 (:func:`~planner.diagnosis.forcemodel.simulated_harmonics` with the fitted
 :class:`stability.simulate.Effects`); structure candidates by the extended model's response to the
 measured force; process damping by the closed-loop spectrum.
@@ -56,7 +58,7 @@ from oma.modal import ModalModel
 from stability.simulate import Effects, ForceSensorDynamics, NonlinearCutting, ProcessDamping
 
 from .compare import Parts, align_angle, rotate
-from .coefficients import coefficient_bounds, coefficient_start, expand, standard_errors, _units
+from .coefficients import _units, coefficient_basis, coefficient_bounds, coefficient_start, expand, standard_errors
 from .forcemodel import ToothRadiiRunout, sensor_gain
 from .response import Delayer, modal_response, unit_mode_response
 
@@ -280,8 +282,25 @@ def fit_force_sensor(parts: Parts) -> Extension:
 
     costs = np.array([grid_cost(g) for g in grid])
     order = np.argsort(costs)[:3]
-    starts = [[math.log(grid[j][0]), math.log(grid[j][1])] for j in order]
-    x, res = _fit_force(parts, predict, starts[0], lower, upper, starts=starts)
+    # then the resonance together with the coefficients (Ktc, Krc, Kac, an edge scale): the
+    # baseline's re-fit took part of the sensor's rise across the harmonics as a change of the
+    # coefficients, which the resonance must be free to give back
+    coef0 = views[0].coefficients
+    units = _units(views[0], coef0)
+    basis = coefficient_basis(parts, units)
+    c0 = coefficient_start(coef0, units)
+    c_lo, c_hi = coefficient_bounds(c0)
+
+    def predict_joint(x, i):
+        v = views[i]
+        fh = np.arange(v.n_harm + 1) * v.spindle_hz
+        harm = np.tensordot(expand(x[2:], coef0, units), basis[i], axes=1) + parts.force.correction[i]
+        return harm * sensor_gain(fh, math.exp(x[0]), math.exp(x[1]))[None, :]
+
+    starts = [np.concatenate([[math.log(grid[j][0]), math.log(grid[j][1])], c0]) for j in order]
+    x, res = _fit_force(parts, predict_joint, starts[0], np.concatenate([lower, c_lo]),
+                        np.concatenate([upper, c_hi]), starts=starts)
+    predict = predict_joint
     fr, zeta = math.exp(x[0]), math.exp(x[1])
     effects = Effects(force_sensor=ForceSensorDynamics(fr, zeta))
     # the sensor filters only what is measured: the simulated cut is the baseline's, and its
@@ -301,7 +320,6 @@ def fit_nonlinear(parts: Parts) -> Extension:
     Kac, an edge scale; :mod:`~planner.diagnosis.coefficients`), so that ``p`` measures the shape
     of the force pulse the linear-plus-edge model cannot take, whatever the law's exact form (a
     saturating law comes out as its mean log-slope over the chips of the cut)."""
-    feeds = sorted({float(v.cut.feed_per_tooth_m) for v in parts.views})
     h0 = float(parts.views[0].cut.feed_per_tooth_m)
     base = parts.views[0].coefficients
     units = _units(parts.views[0], base)
@@ -311,27 +329,17 @@ def fit_nonlinear(parts: Parts) -> Extension:
     def coef(xc):
         return CuttingCoefficients(*[float(v) for v in expand(xc, base, units) * units])
 
-    several = len(feeds) > 1
-    if not several:
-        # one feed: the coefficients hold at that feed (the simulator's default reference chip)
-        def predict(x, i):
-            return parts.force.analytic(i, coefficients=coef(x[1:]), exponent_p=float(x[0]), reference_chip_m=h0)
+    # the coefficients hold at h0 (the first record's feed): with them free, where they hold is
+    # no second unknown (K (h / h_ref)^-p = K h_ref^p h^-p); with records at several feeds the
+    # exponent is pinned by how the force scales between them as well as by the pulse's shape
+    def predict(x, i):
+        return parts.force.analytic(i, coefficients=coef(x[1:]), exponent_p=float(x[0]), reference_chip_m=h0)
 
-        x0, lo, hi = np.concatenate([[0.2], c0]), np.concatenate([[-0.5], c_lo]), np.concatenate([[0.9], c_hi])
-    else:
-        # several feeds: where the linear coefficients hold is a second unknown
-        def predict(x, i):
-            return parts.force.analytic(i, coefficients=coef(x[2:]), exponent_p=float(x[0]),
-                                        reference_chip_m=h0 * math.exp(x[1]))
-
-        x0 = np.concatenate([[0.2, 0.0], c0])
-        lo = np.concatenate([[-0.5, math.log(0.2 * feeds[0] / h0)], c_lo])
-        hi = np.concatenate([[0.9, math.log(5.0 * feeds[-1] / h0)], c_hi])
+    x0, lo, hi = np.concatenate([[0.2], c0]), np.concatenate([[-0.5], c_lo]), np.concatenate([[0.9], c_hi])
     starts = [x0, np.concatenate([[0.0], x0[1:]])]
     x, res = _fit_force(parts, predict, x0, lo, hi, starts=starts)
-    p = float(x[0])
-    href = h0 * math.exp(float(x[1])) if several else h0
-    cf = coef(x[2:] if several else x[1:])
+    p, href = float(x[0]), h0
+    cf = coef(x[1:])
     try:
         p_sigma = float(standard_errors(res, 1)[0])
     except np.linalg.LinAlgError:  # pragma: no cover
@@ -620,18 +628,18 @@ def fit_pose_drift(parts: Parts) -> Extension:
     v0 = min(st.views, key=lambda v: v.split)
     t_fit = v0.split / v0.sample_rate_hz
     trials = [(_sumsq(make_fun(float(ts))([0.0, g])), float(ts), g)
-              for ts in np.linspace(0.1, 0.9, 9) * t_fit for g in (-0.08, 0.08)]
+              for ts in np.linspace(0.1, 0.9, 9) * t_fit for g in (-0.12, -0.05, 0.05, 0.12)]
     c_s, ts, g0 = min(trials)
-    if c_s < cost:
-        xs, cs, _, oks = _levenberg_marquardt(make_fun(ts), [0.0, g0], step=1e-4, max_iter=12, **bounds)
-        if cs < cost:
-            x, cost, ok, t_step = xs, cs, oks, ts
-            for tr in ts + np.linspace(-0.1, 0.1, 9) * t_fit:
-                if not 0 < tr < t_fit:
-                    continue
-                xr, cr, _, okr = _levenberg_marquardt(make_fun(float(tr)), x, step=1e-4, max_iter=4, **bounds)
-                if cr < cost:
-                    x, cost, ok, t_step = xr, cr, okr, float(tr)
+    # the best trial step, sized by Levenberg-Marquardt, against the ramp
+    xs, cs, _, oks = _levenberg_marquardt(make_fun(ts), [0.0, g0], step=1e-4, max_iter=12, **bounds)
+    if cs < cost:
+        x, cost, ok, t_step = xs, cs, oks, ts
+        for tr in ts + np.linspace(-0.1, 0.1, 9) * t_fit:
+            if not 0 < tr < t_fit:
+                continue
+            xr, cr, _, okr = _levenberg_marquardt(make_fun(float(tr)), x, step=1e-4, max_iter=4, **bounds)
+            if cr < cost:
+                x, cost, ok, t_step = xr, cr, okr, float(tr)
     pred = []
     for v in st.views:
         n = v.n_samples
@@ -679,17 +687,42 @@ def fit_process_damping(parts: Parts) -> Extension:
     if c_spec > 0 and (costs[0] - cost(c_spec)) > 9.0 * noise * 1.5:
         thetas = _initial_thetas(parts)
 
+        # the coefficients may re-adjust at every trial (linear least squares on the four columns
+        # of Ktc, Krc, Kac and the edge scale): the harmonics tell C only by what a change of the
+        # coefficients cannot mimic
+        coef0 = parts.views[0].coefficients
+        units = _units(parts.views[0], coef0)
+        basis = coefficient_basis(parts, units)
+        cols = []
+        n_c = len(coefficient_start(coef0, units))
+        for k in range(n_c):
+            xk = np.zeros(n_c)
+            xk[k] = 1.0
+            cols.append(_force_residuals(parts, lambda i, xk=xk: -np.tensordot(expand(xk, coef0, units), basis[i],
+                                                                                axes=1), thetas)
+                        - _force_residuals(parts, lambda i: 0.0 * basis[i][0], thetas))
+        design = np.column_stack(cols)
+
         def chi2(cc):
             eff = Effects(process_damping=ProcessDamping(cc)) if cc > 0 else Effects()
             preds = [parts.force.simulate(v, eff) for v in parts.views] if cc > 0 else parts.force.baseline
-            return _sumsq(_force_residuals(parts, lambda i: preds[i], thetas)), preds
+            r = _force_residuals(parts, lambda i: preds[i], thetas)
+            beta, *_ = np.linalg.lstsq(design, -r, rcond=None)
+            return _sumsq(r + design @ beta), preds
 
         trial = [0.0, 0.6 * c_spec, c_spec, 1.6 * c_spec]
         vals = [chi2(cc)[0] for cc in trial]
-        coef = np.polyfit(trial, vals, 2)
-        c_h = float(-coef[1] / (2.0 * coef[0])) if coef[0] > 0 else float(trial[int(np.argmin(vals))])
-        c_h = min(max(c_h, 0.0), 3.0 * c_spec)
-        v_h = chi2(c_h)[0] if c_h > 0 else vals[0]
+        kb = int(np.argmin(vals))
+        if kb == 0:
+            c_h, v_h = 0.0, vals[0]
+        else:
+            # a bounded search in log C between the neighbours of the best trial (the chi-square is
+            # not a parabola over this range)
+            lo_c = trial[kb - 1] if kb > 1 else 0.3 * c_spec
+            hi_c = trial[kb + 1] if kb + 1 < len(trial) else 3.0 * c_spec
+            res_h = optimize.minimize_scalar(lambda lc: chi2(math.exp(lc))[0], bounds=(math.log(lo_c), math.log(hi_c)),
+                                             method="bounded", options={"xatol": 0.02, "maxiter": 12})
+            c_h, v_h = float(math.exp(res_h.x)), float(res_h.fun)
         # the harmonics decide when they tell C apart: their chi-square separates the spectral
         # estimate from their own optimum by more than 9 (then they are the sharper measurement;
         # at low speed the averaged closed loop of the spectrum is off by tens of percent)

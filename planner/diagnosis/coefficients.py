@@ -72,22 +72,35 @@ def _units(view, nominal: CuttingCoefficients) -> np.ndarray:
     return np.array([ktc, ktc, ktc, ktc * fz, ktc * fz, ktc * fz])
 
 
+#: Edge coefficients re-fitted: ``"scale"`` (one factor, their ratios kept) or ``"free"`` (three).
+EDGE_MODE = "scale"
+
+
+def n_parameters() -> int:
+    """Parameters of the coefficient fit: Ktc, Krc, Kac and the edge terms (:data:`EDGE_MODE`)."""
+    return 6 if EDGE_MODE == "free" else 4
+
+
 def expand(x, nominal: CuttingCoefficients, units) -> np.ndarray:
     """The six coefficients (in ``units``) of the fit's four parameters: Ktc, Krc, Kac (in units)
     and one scale of the three edge coefficients (their ratios kept: a size effect would take
     the freedom of three independent edge terms, since ``h^(1-p)`` is close to ``a + b h`` over
     one feed's chips)."""
+    if len(x) == 6:
+        return np.asarray(x, dtype=float)
     edges = np.array([getattr(nominal, f) for f in FIELDS[3:]]) / units[3:]
     return np.concatenate([x[:3], x[3] * edges])
 
 
 def coefficient_start(nominal: CuttingCoefficients, units) -> np.ndarray:
-    return np.array([max(nominal.Ktc_N_m2 / units[0], 1e-6), max(nominal.Krc_N_m2 / units[1], 1e-6),
-                     max(nominal.Kac_N_m2 / units[2], 1e-6), 1.0])
+    cut = [max(getattr(nominal, f) / u, 1e-6) for f, u in zip(FIELDS[:3], units[:3])]
+    if n_parameters() == 6:
+        return np.array(cut + [max(getattr(nominal, f) / u, 1e-6) for f, u in zip(FIELDS[3:], units[3:])])
+    return np.array(cut + [1.0])
 
 
 def coefficient_bounds(x0):
-    return np.zeros(4), np.maximum(5.0 * np.abs(x0), 5.0)
+    return np.zeros(len(x0)), np.maximum(5.0 * np.abs(x0), 5.0)
 
 
 def standard_errors(res, n_par: int) -> np.ndarray:
@@ -138,9 +151,13 @@ def fit_coefficients(parts: Parts) -> CoefficientFit:
 
     lower, upper = coefficient_bounds(x0)
     x, res = _fit_force(parts, predict, x0, lower, upper)
-    sig4 = standard_errors(res, 4)
+    n_par = len(x0)
+    sig_x = standard_errors(res, n_par)
     vals = expand(x, nominal, units) * units
-    sig = np.concatenate([sig4[:3] * units[:3], np.abs([getattr(nominal, f) for f in FIELDS[3:]]) * sig4[3]])
+    if n_par == 6:
+        sig = sig_x * units
+    else:
+        sig = np.concatenate([sig_x[:3] * units[:3], np.abs([getattr(nominal, f) for f in FIELDS[3:]]) * sig_x[3]])
     fitted = CuttingCoefficients(*[float(v) for v in vals])
     se = {f: float(s) for f, s in zip(FIELDS, sig)}
 
@@ -159,7 +176,7 @@ def fit_coefficients(parts: Parts) -> CoefficientFit:
         "Ktc_relative_change_sigma": se["Ktc_N_m2"] / abs(nominal.Ktc_N_m2) if nominal.Ktc_N_m2 else float("nan"),
         "Krc_relative_change_sigma": se["Krc_N_m2"] / abs(nominal.Krc_N_m2) if nominal.Krc_N_m2 else float("nan"),
         "ratio_relative_change_sigma": ratio_sig / ratio0 if ratio0 else float("nan"),
-        "edge_scale": float(x[3]),
+        "edge_scale": float(x[3]) if n_par == 4 else float("nan"),
         "coefficients": {f: float(getattr(fitted, f)) for f in FIELDS},
         "reduced_chi_square": 2.0 * float(res.cost) / max(res.fun.size - res.jac.shape[1], 1),
     }
