@@ -243,8 +243,12 @@ def _score_extension(parts: Parts, ext: Extension) -> CandidateResult:
 
 def _score_coefficients(nominal: Parts, refit: Parts, fit: CoefficientFit) -> CandidateResult:
     """The re-fitted coefficients as a cause: the refit's baseline against the nominal one."""
-    ext = Extension("cutting_coefficients", "force", dict(fit.parameters), fit.success, fit.message,
-                    list(refit.force.baseline), other_predictions={"stability": list(refit.base_logs["val"])})
+    from .causes import _harmonic_evidence
+
+    pred = list(refit.force.baseline)
+    ext = Extension("cutting_coefficients", "force", dict(fit.parameters), fit.success, fit.message, pred,
+                    evidence=_harmonic_evidence(nominal, pred),
+                    other_predictions={"stability": list(refit.base_logs["val"])})
     return _score_extension(nominal, ext)
 
 
