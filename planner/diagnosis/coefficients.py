@@ -11,7 +11,7 @@ harmonics of the fit halves, and measures every other cause against the re-fitte
 The rigid-tool force is linear in the six coefficients, so its harmonics are a sum of six basis
 arrays (:func:`~planner.diagnosis.forcemodel.analytic_harmonics` with one unit coefficient each);
 the fit is a weighted least squares over them and one spindle angle per record
-(:func:`~planner.diagnosis.causes._fit_force`), the vibration feedback of the nominal simulation
+(:func:`~planner.diagnosis.forcefits._fit_force`), the vibration feedback of the nominal simulation
 kept as a correction (a fraction of a percent on a robot). Standard errors come from the
 Jacobian of the whitened residuals, scaled by the reduced chi-square (so a misfit of shape, say a
 helix a few degrees off, widens them instead of hiding).
@@ -139,7 +139,7 @@ def fit_coefficients(parts: Parts) -> CoefficientFit:
     -------
     CoefficientFit
     """
-    from .causes import _fit_force
+    from .forcefits import _fit_force
 
     nominal = parts.views[0].coefficients
     units = _units(parts.views[0], nominal)

@@ -243,7 +243,7 @@ def _score_extension(parts: Parts, ext: Extension) -> CandidateResult:
 
 def _score_coefficients(nominal: Parts, refit: Parts, fit: CoefficientFit) -> CandidateResult:
     """The re-fitted coefficients as a cause: the refit's baseline against the nominal one."""
-    from .causes import _harmonic_evidence
+    from .forcefits import _harmonic_evidence
 
     pred = list(refit.force.baseline)
     ext = Extension("cutting_coefficients", "force", dict(fit.parameters), fit.success, fit.message, pred,
