@@ -30,7 +30,23 @@ cross_coupling         the X or the Y mode turned 20-45 deg out of its axis, abo
                        axis perpendicular to it
 pose_drift             natural frequencies changing by 5-15 % (either sign) over the record
 nonlinear_cutting      size-effect exponent p 0.2-0.4 (reference chip: the feed per tooth)
+cutting_coefficients   Ktc 12-30 % off (either sign), Krc, Kac and the edge terms up to 20 %
 =====================  ===================================================================
+
+Forms (``form=``, :data:`FORMS`; the first is the simulator's own): runout as an eccentric axis or
+as unequal tooth radii (one tooth standing out by ``2 A``: :class:`~planner.diagnosis.forcemodel.
+ToothRadiiRunout`); a delay of the displacement or of the force channel (the truth's sign says
+which); a pose drift gradual or as a step at 15-40 % of the record (inside the fit half: the
+displacement recomputed from the simulated force through the model with its frequencies stepped,
+then quantised); a size effect as a power law or as the saturating law ``K ((h + h0) / (fz +
+h0))^-q``, ``h0`` 5-20 % of the feed (the force difference of the two laws on a rigid tool,
+through the record's anti-alias filter, added to the force and its response to the displacement;
+the truth is the law's log-slope between ``fz / 4`` and ``fz``). Post-processed records come from
+the simulator's ideal sensors, then get the cell's noise and quantisation.
+
+Nuisance (``nuisance=True``), drawn per record from its own stream: the six coefficients off by up
+to 20 % each (the record states the nominal ones), background variance 100-800 N^2 per axis and
+band 300-450 Hz, helix 30 +- 5 deg (the record states 30 deg).
 """
 
 from __future__ import annotations

@@ -2,21 +2,28 @@
 better the extended model predicts.
 
 1. Compare (:mod:`~planner.diagnosis.compare`): force, structure and stability parts, each record
-   split into a fit half and a validation half.
-2. Fit every candidate cause on the fit halves (:mod:`~planner.diagnosis.causes`) and predict its
-   part on the validation halves.
-3. Score: ``gain = (e_before - e_after) / e_before`` of the candidate's part on the validation
-   halves, and its significance ``z`` (the reduction of the validation residual over the standard
-   deviation the noise alone would give it, :func:`~planner.diagnosis.compare.significance`).
-4. Name the cause. A candidate qualifies in a part that disagrees with the measurement beyond its
+   split into a fit half and a validation half, with the nominal cutting coefficients.
+2. Re-fit the cutting coefficients on the fit halves (:mod:`~planner.diagnosis.coefficients`): the
+   baseline every other cause must beat. ``cutting_coefficients`` is scored as the re-fitted
+   baseline against the nominal one.
+3. Fit every other candidate cause on the fit halves on top of the re-fitted coefficients
+   (:mod:`~planner.diagnosis.causes`) and predict its part on the validation halves.
+4. Score: ``gain = (e_before - e_after) / e_before`` of the candidate's part on the validation
+   halves (against the re-fitted baseline), and its significance ``z`` (the reduction of the
+   validation residual over the standard deviation the noise alone would give it,
+   :func:`~planner.diagnosis.compare.significance`).
+5. Name the cause. A candidate qualifies in a part that disagrees with the measurement beyond its
    noise (``disagreement >= min_significance``) when its own reduction there is significant (``z
    >= min_significance``; 3: a spurious extension reaches it with probability below 0.2 %, since
-   its expected reduction is negative) and ``gain >= min_gain``. Among the qualified, the one that
-   explains the most disagreement wins: ``score = sum over the parts it predicts of gain x
-   disagreement`` (in standard deviations of each part's noise power, so that parts compare;
-   within one part this is the order of the gains). ``none`` if no candidate qualifies. An
-   extension may predict more than its own part: process damping also changes the force
-   harmonics (through the forced vibration), which the simulator predicts.
+   its expected reduction is negative), ``gain >= min_gain`` (the share of the part's error it
+   removes) and its fitted size passes its practical floor (:mod:`~planner.diagnosis.floors`:
+   twice its standard error and a physically argued amount). Among the qualified, an effect beats
+   the coefficients (it survived their re-fit; the re-fit is reported beside it), and among
+   effects the one that explains the most disagreement wins: ``score = sum over the parts it
+   predicts of gain x disagreement`` (in standard deviations of each part's noise power, so that
+   parts compare). ``none`` if no candidate qualifies. An extension may predict more than its own
+   part: process damping also changes the force harmonics (through the forced vibration), which
+   the simulator predicts; the coefficients also change the closed-loop spectrum.
 """
 
 from __future__ import annotations
