@@ -79,10 +79,14 @@ def test_to_dict_has_the_cli_keys_and_is_json():
     assert all(set(r) >= {"cause", "gain"} for r in out["ranking"])
     assert set(out["errors"]) == {"force", "structure", "stability"}
     assert "delay_s" in out["parameters"]
-    # the ranking is ordered by the disagreement explained, the named cause first
-    scores = [r["score"] for r in out["ranking"] if r["gain"] is not None]
-    assert scores == sorted(scores, reverse=True)
+    # the named cause first, with its practical size above its floor; the re-fitted coefficients
+    # (the baseline) reported beside it
     assert out["ranking"][0]["cause"] == out["cause"]
+    top = out["ranking"][0]["practical"]
+    assert top["passes"] and top["size"] >= top["floor"]
+    assert set(out["baseline_coefficients"]["fitted"]) == {"Ktc_N_m2", "Krc_N_m2", "Kac_N_m2", "Kte_N_m", "Kre_N_m",
+                                                           "Kae_N_m"}
+    assert out["thresholds"]["practical_floors"]["nonlinear_cutting"] == 0.05
     json.dumps(out)
     rec = out["records"][0]
     assert rec["chatter"]["chatter"] is False and rec["predicted_stable"] is True
@@ -100,8 +104,9 @@ def test_restricting_the_candidates():
 
 
 def test_nonlinear_cutting_from_records_at_two_feeds():
-    """With records at 0.3 and 0.5 mm per tooth, the size effect's exponent and the chip at which the
-    linear coefficients hold (0.5 mm) are both recovered (within 20 %)."""
+    """With records at 0.3 and 0.5 mm per tooth, the size effect's exponent is recovered (within
+    20 %), and the coefficients fitted with it, which hold at the first record's chip (0.3 mm),
+    are the simulator's at 0.5 mm scaled by the size effect ``(0.3 / 0.5)^-p``."""
     from stability.simulate import Effects, NonlinearCutting, simulate
 
     cell = paper_like_cell()
@@ -116,5 +121,8 @@ def test_nonlinear_cutting_from_records_at_two_feeds():
     d = diagnose(records, cell.model, plot_data=False)
     assert d.cause == "nonlinear_cutting"
     assert d.parameters["exponent_p"] == pytest.approx(0.3, rel=PARAMETER_TOLERANCE)
-    assert d.parameters["reference_chip_m"] == pytest.approx(0.0005, rel=PARAMETER_TOLERANCE)
+    p = d.parameters["exponent_p"]
+    assert d.parameters["reference_chip_m"] == 0.0003
+    ktc = d.parameters["coefficients"]["Ktc_N_m2"] * (0.0003 / 0.0005) ** p
+    assert ktc == pytest.approx(cell.material.cutting_coefficients.Ktc_N_m2, rel=0.05)
     assert d.gain >= MIN_GAIN

@@ -1,10 +1,12 @@
 """Diagnosis: show where robomill's simulation disagrees with measured cuts, name the physical cause,
 extend the model with it and measure how much better the extended model predicts (robomill
-issue 6).
+issues 6 and 10).
 
 Layers: :mod:`.spectral`, :mod:`.response`, :mod:`.forcemodel`, :mod:`.closedloop` (numerics);
 :mod:`.compare` (the three parts of the comparison and their error definitions); :mod:`.causes`
-(one fit per candidate cause); :mod:`.diagnose` (scoring, naming, the :class:`Diagnosis` result);
+(one fit per candidate cause; the force-side ones in :mod:`.forcefits`, the cutting coefficients
+re-fitted first in :mod:`.coefficients`, the practical floors in :mod:`.floors`); :mod:`.diagnose`
+(scoring, naming, the :class:`Diagnosis` result);
 :mod:`.chatter` (chatter detection); :mod:`.cases` (simulated hidden-effect cases for tests and
 benchmarks); :mod:`.hurco` (reader and chatter table for the measured CNC cuts); :mod:`.shortcuts`
 (what the paper's own identification gets wrong); :mod:`.plots` (matplotlib, imported only when a

@@ -8,19 +8,20 @@ the diagnosis scores against the baseline.
 ========================  =========  ==============================================================
 cause                     part       extension, fit, parameters
 ========================  =========  ==============================================================
-runout                    force      tooth radii ``R + A cos(phase - 2 pi j / N)``; harmonics of the
+runout                    force      one radius offset per tooth (form-free: an eccentric axis and
+                                     unequal radii are both patterns of offsets); harmonics of the
                                      rigid-tool force (:func:`~planner.diagnosis.forcemodel.
-                                     analytic_harmonics`) fitted by weighted least squares. With two
-                                     teeth only ``A cos(phase)`` acts: reported as the amplitude
-                                     with phase 0 or pi.
+                                     analytic_harmonics`) fitted by weighted least squares. Reported:
+                                     half the spread of the radii (with two teeth only
+                                     ``rho_0 - rho_1`` acts: ``A |cos(phase)|`` of an eccentric axis).
 force_sensor_dynamics     force      measured = ``w^2 / (s^2 + 2 zeta w s + w^2)`` x true force;
                                      the resonance multiplies the predicted harmonics. Frequency
-                                     and damping, multi-start least squares.
-nonlinear_cutting         force      size effect ``K ~ (h / h_ref)^-p``: the shape of the force pulse,
-                                     i.e. the mean force and the harmonics relative to each other.
-                                     One record (one feed) suffices, with ``h_ref`` its feed per
-                                     tooth (the linear coefficients taken as right there); with
-                                     records at two or more feeds ``h_ref`` is fitted too.
+                                     and damping (with the coefficients free again), multi-start
+                                     least squares.
+nonlinear_cutting         force      size effect ``K ~ (h / h_ref)^-p`` fitted with the coefficients
+                                     free: the shape of the force pulse the linear-plus-edge model
+                                     cannot take, whatever the law's form. ``h_ref`` is the first
+                                     record's feed per tooth (the fitted coefficients hold there).
 channel_delay             structure  displacement read at ``t - delay``; 1-D search (+-100 ms).
 unmodeled_mode            structure  one more mode ``u u^T / (k (1 - r^2 + 2 i zeta r))``: for each
                                      trial ``(f_n, zeta)`` the symmetric matrix ``u u^T / k`` is
@@ -28,16 +29,18 @@ unmodeled_mode            structure  one more mode ``u u^T / (k (1 - r^2 + 2 i z
 cross_coupling            structure  one mode's direction turned (two angles), its stiffness kept;
                                      the mode that gains most.
 pose_drift                structure  every natural frequency scaled by ``s0 (1 + r t / T)`` along
-                                     the record (mass and damping ratio kept); ``r`` is the relative
-                                     change over the record. Fitted on the first half, it
-                                     extrapolates into the second.
+                                     the record (mass and damping ratio kept), or by a step ``s0 (1
+                                     + r [t >= t_s])``; ``r`` is the relative change over the record.
+                                     The form that fits the first half better predicts the second.
 process_damping           stability  ``C`` of Budak & Tunc's flank force in the closed-loop force
                                      spectrum (:mod:`~planner.diagnosis.closedloop`), refined on
-                                     the force harmonics (simulated) where the forced vibration
-                                     carries it.
+                                     the force harmonics (simulated, the coefficients re-adjusted
+                                     at each trial) where the forced vibration carries it.
 ========================  =========  ==============================================================
 
-Force candidates are validated with the time-domain simulator
+Every candidate is fitted on top of the re-fitted cutting coefficients
+(:mod:`~planner.diagnosis.coefficients`), the baseline it must beat; the force candidates live in
+:mod:`~planner.diagnosis.forcefits`. Force candidates are validated with the time-domain simulator
 (:func:`~planner.diagnosis.forcemodel.simulated_harmonics` with the fitted
 :class:`stability.simulate.Effects`); structure candidates by the extended model's response to the
 measured force; process damping by the closed-loop spectrum.
@@ -46,68 +49,20 @@ measured force; process damping by the closed-loop spectrum.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import optimize
 
 from oma.modal import ModalModel
-from stability.simulate import Effects, ForceSensorDynamics, NonlinearCutting, ProcessDamping, Runout
+from stability.simulate import Effects, ProcessDamping
 
-from .compare import Parts, align_angle, rotate
-from .forcemodel import sensor_gain
+from .coefficients import _units, coefficient_basis, coefficient_start, expand
+from .compare import Parts
+from .extension import Extension, _failed, _sumsq
+from .forcefits import _force_residuals, _initial_thetas, fit_force_sensor, fit_nonlinear, fit_runout
 from .response import Delayer, modal_response, unit_mode_response
 
 __all__ = ["Extension", "CANDIDATES", "fit_candidate"]
-
-
-@dataclass(frozen=True)
-class Extension:
-    """A fitted candidate cause.
-
-    Attributes
-    ----------
-    cause : str
-    part : str
-        ``force``, ``structure`` or ``stability``.
-    parameters : dict
-        Fitted parameters, physical units in the key names.
-    success : bool
-    message : str
-    prediction : list
-        The part's prediction on the validation halves (per view), as the part's ``evaluate``
-        takes it.
-    other_predictions : dict
-        Predictions of other parts the extension changes (``{"force": [...]}`` for process
-        damping, whose flank force also acts on the forced vibration at the tooth harmonics).
-    model : ModalModel or None
-        The extended structure model (structure candidates with a single model).
-    effects : Effects or None
-        The fitted effect as a simulator extension (force candidates).
-    evidence : dict
-        Named arrays for the plots.
-    """
-
-    cause: str
-    part: str
-    parameters: dict
-    success: bool
-    message: str
-    prediction: list = field(repr=False, default_factory=list)
-    model: ModalModel | None = field(repr=False, default=None)
-    effects: Effects | None = field(repr=False, default=None)
-    evidence: dict = field(repr=False, default_factory=dict)
-    other_predictions: dict = field(repr=False, default_factory=dict)
-
-
-def _failed(cause, part, message) -> Extension:
-    return Extension(cause, part, {}, False, message)
-
-
-def _sumsq(x) -> float:
-    """Sum of squares without BLAS ``ddot`` (multithreaded above ~10^4 elements, which costs
-    milliseconds per call on a loaded machine)."""
-    return float(np.einsum("i,i->", x, x))
 
 
 def _levenberg_marquardt(fun, x0, *, step, lower=None, upper=None, max_iter=30, tol=1e-10):
@@ -155,162 +110,6 @@ def _levenberg_marquardt(fun, x0, *, step, lower=None, upper=None, max_iter=30, 
     return x, cost, n_eval, converged
 
 
-# ------------------------------------------------------------------------------------- force
-def _force_residuals(parts: Parts, predict, thetas):
-    """Whitened residuals of the fit halves for per-view predictions and angles."""
-    out = []
-    for i, th in enumerate(thetas):
-        y = parts.force.measured["fit"][i]
-        s = parts.force.noise["fit"][i]
-        r = (y - rotate(predict(i), th)) / np.sqrt(np.maximum(s, 1e-30))
-        out += [r.real.ravel(), r.imag[:, 1:].ravel()]
-    return np.concatenate(out)
-
-
-def _initial_thetas(parts: Parts):
-    return [align_angle(parts.force.measured["fit"][i], parts.force.baseline[i],
-                        1.0 / np.maximum(parts.force.noise["fit"][i], 1e-30)) for i in range(len(parts.views))]
-
-
-def _fit_force(parts: Parts, predict_from, x0, lower, upper, *, starts=None):
-    """Least squares over the cause's parameters and one angle per view; returns (x, cost)."""
-    n_views = len(parts.views)
-    th0 = _initial_thetas(parts)
-
-    def fun(z):
-        x, th = z[:-n_views], z[-n_views:]
-        return _force_residuals(parts, lambda i: predict_from(x, i), th)
-
-    best = None
-    for start in (starts if starts is not None else [x0]):
-        z0 = np.concatenate([np.asarray(start, dtype=float), th0])
-        lo = np.concatenate([lower, np.full(n_views, -np.inf)])
-        hi = np.concatenate([upper, np.full(n_views, np.inf)])
-        res = optimize.least_squares(fun, np.clip(z0, lo + 1e-12, hi - 1e-12), bounds=(lo, hi), x_scale="jac",
-                                     max_nfev=80)
-        if best is None or res.cost < best.cost:
-            best = res
-    return best.x[:-n_views], best
-
-
-def _harmonic_evidence(parts: Parts, prediction) -> dict:
-    v = parts.views[0]
-    y = parts.force.measured["val"][0]
-    s = parts.force.noise["val"][0]
-    base = parts.force.baseline[0]
-    th_b = align_angle(y, base, 1.0 / np.maximum(s, 1e-30))
-    th_a = align_angle(y, prediction[0], 1.0 / np.maximum(s, 1e-30))
-    return {
-        "kind": "harmonics",
-        "freq_hz": np.arange(y.shape[1]) * v.spindle_hz,
-        "measured": np.abs(y),
-        "before": np.abs(rotate(base, th_b)),
-        "after": np.abs(rotate(prediction[0], th_a)),
-        "noise": np.sqrt(s),
-    }
-
-
-def fit_runout(parts: Parts) -> Extension:
-    teeth = int(parts.views[0].tool.teeth)
-    if teeth < 2:
-        return _failed("runout", "force", "a single tooth has no runout signature")
-    j = np.arange(teeth)
-    two = teeth == 2
-    scale = 1e-5  # parameters in units of 10 um
-
-    def increments(x):
-        rc = x[0] * scale
-        rs = 0.0 if two else x[1] * scale
-        rho = rc * np.cos(2 * np.pi * j / teeth) + rs * np.sin(2 * np.pi * j / teeth)
-        return rho - np.roll(rho, -1)
-
-    def predict(x, i):
-        return parts.force.analytic(i, chip_increments_m=increments(x))
-
-    n_par = 1 if two else 2
-    x, res = _fit_force(parts, predict, np.full(n_par, 0.5), np.full(n_par, -20.0), np.full(n_par, 20.0))
-    rc = x[0] * scale
-    rs = 0.0 if two else x[1] * scale
-    amp, phase = math.hypot(rc, rs), math.atan2(rs, rc)
-    effects = Effects(runout=Runout(amp, phase))
-    pred = [parts.force.simulate(v, effects) for v in parts.views]
-    params = {"runout_amplitude_m": amp, "runout_phase_rad": phase}
-    return Extension("runout", "force", params, bool(res.success), str(res.message), pred, None, effects,
-                     _harmonic_evidence(parts, pred))
-
-
-def fit_force_sensor(parts: Parts) -> Extension:
-    base = parts.force.baseline
-    views = parts.views
-    f_top = max(v.n_harm * v.spindle_hz for v in views)
-    f_lo = min(v.spindle_hz for v in views)
-
-    def predict(x, i):
-        v = views[i]
-        fh = np.arange(v.n_harm + 1) * v.spindle_hz
-        return base[i] * sensor_gain(fh, math.exp(x[0]), math.exp(x[1]))[None, :]
-
-    lower = np.array([math.log(f_lo), math.log(0.002)])
-    upper = np.array([math.log(20.0 * f_top), math.log(0.7)])
-    # coarse search over the resonance frequency and damping (the spindle angle re-aligned at every
-    # trial: a resonance among the harmonics turns their phases), then least squares from the best
-    grid = [(f, z) for f in np.geomspace(1.5 * f_lo, 10.0 * f_top, 40) for z in (0.03, 0.1)]
-
-    def grid_cost(fz):
-        x = [math.log(fz[0]), math.log(fz[1])]
-        cost = 0.0
-        for i in range(len(views)):
-            y, s = parts.force.measured["fit"][i], parts.force.noise["fit"][i]
-            p = predict(x, i)
-            wts = 1.0 / np.maximum(s, 1e-30)
-            cost += float(np.sum(wts * np.abs(y - rotate(p, align_angle(y, p, wts))) ** 2))
-        return cost
-
-    costs = np.array([grid_cost(g) for g in grid])
-    order = np.argsort(costs)[:3]
-    starts = [[math.log(grid[j][0]), math.log(grid[j][1])] for j in order]
-    x, res = _fit_force(parts, predict, starts[0], lower, upper, starts=starts)
-    fr, zeta = math.exp(x[0]), math.exp(x[1])
-    effects = Effects(force_sensor=ForceSensorDynamics(fr, zeta))
-    # the sensor filters only what is measured: the simulated cut is the baseline's, and its
-    # measured harmonics are multiplied by the sensor's response (exact for a linear sensor; the
-    # simulator applies the same filter in the time domain)
-    pred = [predict(x, i) for i in range(len(views))]
-    params = {"sensor_frequency_hz": fr, "sensor_damping_ratio": zeta}
-    ev = _harmonic_evidence(parts, pred)
-    fgrid = np.linspace(0.0, views[0].sample_rate_hz / 2, 400)
-    ev.update({"sensor_freq_hz": fgrid, "sensor_gain": np.abs(sensor_gain(fgrid, fr, zeta))})
-    return Extension("force_sensor_dynamics", "force", params, bool(res.success), str(res.message), pred, None,
-                     effects, ev)
-
-
-def fit_nonlinear(parts: Parts) -> Extension:
-    feeds = sorted({float(v.cut.feed_per_tooth_m) for v in parts.views})
-    h0 = float(parts.views[0].cut.feed_per_tooth_m)
-    if len(feeds) == 1:
-        # one feed: the linear coefficients are taken as right at that feed (the simulator's
-        # default reference chip); the size effect shows in the shape of the force pulse
-        def predict(x, i):
-            return parts.force.analytic(i, exponent_p=float(x[0]), reference_chip_m=h0)
-
-        x, res = _fit_force(parts, predict, np.array([0.2]), np.array([-0.5]), np.array([0.9]))
-        p, href = float(x[0]), h0
-    else:
-        # several feeds: where the linear coefficients hold is a second unknown
-        def predict(x, i):
-            return parts.force.analytic(i, exponent_p=float(x[0]), reference_chip_m=h0 * math.exp(x[1]))
-
-        lo = math.log(0.2 * feeds[0] / h0)
-        hi = math.log(5.0 * feeds[-1] / h0)
-        x, res = _fit_force(parts, predict, np.array([0.2, 0.0]), np.array([-0.5, lo]), np.array([0.9, hi]))
-        p, href = float(x[0]), h0 * math.exp(float(x[1]))
-    effects = Effects(nonlinear_cutting=NonlinearCutting(p, href))
-    pred = [parts.force.simulate(v, effects) for v in parts.views]
-    params = {"exponent_p": p, "reference_chip_m": href}
-    return Extension("nonlinear_cutting", "force", params, bool(res.success), str(res.message), pred, None,
-                     effects, _harmonic_evidence(parts, pred))
-
-
 # --------------------------------------------------------------------------------- structure
 def _structure_objective(parts: Parts, predictions, basis_model=None) -> float:
     st = parts.structure
@@ -334,7 +133,15 @@ def fit_delay(parts: Parts) -> Extension:
                                    method="bounded", options={"xatol": 1e-6})
     tau = float(res.x)
     pred = [d(tau) for d in delayers]
-    return Extension("channel_delay", "structure", {"delay_s": tau}, bool(res.success), "bounded 1-D search",
+    # standard error from the cost's curvature, sigma^2 = 2 s^2 / cost'' with s^2 the residual
+    # variance per element (an underestimate where the tracker's rounding is correlated)
+    h = 2e-4
+    c0, cp, cm = float(res.fun), cost(tau + h), cost(tau - h)
+    curv = (cp + cm - 2.0 * c0) / h**2
+    n_el = sum(st.fit_residual(i, p).size for i, p in enumerate(pred))
+    tau_sigma = math.sqrt(2.0 * c0 / max(n_el - 1, 1) / curv) if curv > 0 else float("inf")
+    return Extension("channel_delay", "structure", {"delay_s": tau, "delay_s_sigma": tau_sigma}, bool(res.success),
+                     "bounded 1-D search",
                      pred, None, None, {"kind": "delay", "delay_grid_s": grid, "cost": costs})
 
 
@@ -537,37 +344,88 @@ def _drift_segments(n, fs, segment_s=0.05):
 
 
 def fit_pose_drift(parts: Parts) -> Extension:
+    """Natural frequencies that change along the record, in two forms fitted on the fit half: a
+    gradual drift ``s0 (1 + r t / T)`` and a step ``s0 (1 + r [t >= t_s])`` (the arm crossing a
+    joint's backlash or a configuration change); the form that fits the fit half better predicts
+    the validation half (a ramp extrapolates, a step stays). ``relative_change`` is the change over
+    the record of the form chosen. A step inside the validation half leaves nothing to fit."""
     st = parts.structure
     if not st.views:
         return _failed("pose_drift", "structure", "no displacement")
 
-    def scale(x, mids, duration):
-        return (1.0 + x[0]) * (1.0 + x[1] * mids / duration)
+    def segments(v, n, t_step):
+        """Segment starts and the scale's time argument: 50 ms segments for a ramp, two for a step."""
+        if t_step is None:
+            return _drift_segments(n, v.sample_rate_hz)
+        k = int(round(t_step * v.sample_rate_hz))
+        return (np.array([0, k]), np.array([0.0, t_step])) if 0 < k < n else (np.array([0]), np.array([0.0]))
 
-    def fun(x):
-        out = []
-        for i, v in enumerate(st.views):
-            n = v.n_samples
-            starts, mids = _drift_segments(n, v.sample_rate_hz)
-            keep = starts < v.split
-            pred = np.full((3, n), np.nan)
-            pred[:, :v.split] = modal_response(st.model, v.force[:, :v.split], v.sample_rate_hz,
-                                               frequency_scale=scale(x, mids[keep], n / v.sample_rate_hz),
-                                               segment_starts=starts[keep])
-            out.append(st.fit_residual(i, pred))
-        return np.concatenate(out)
+    def scale(x, mids, duration, t_step):
+        if t_step is None:
+            return (1.0 + x[0]) * (1.0 + x[1] * mids / duration)
+        return (1.0 + x[0]) * (1.0 + x[1] * (mids >= t_step))
 
+    def make_fun(t_step):
+        def fun(x):
+            out = []
+            for i, v in enumerate(st.views):
+                n = v.n_samples
+                starts, mids = segments(v, n, t_step)
+                keep = starts < v.split
+                pred = np.full((3, n), np.nan)
+                pred[:, :v.split] = modal_response(st.model, v.force[:, :v.split], v.sample_rate_hz,
+                                                   frequency_scale=scale(x, mids[keep], n / v.sample_rate_hz,
+                                                                         t_step),
+                                                   segment_starts=starts[keep])
+                out.append(st.fit_residual(i, pred))
+            return np.concatenate(out)
+        return fun
+
+    bounds = dict(lower=[-0.5, -0.6], upper=[0.5, 0.6])
     grid = np.linspace(-0.3, 0.3, 9)
+    fun = make_fun(None)
     costs = np.array([_sumsq(fun([0.0, g])) for g in grid])
     x0 = [0.0, float(grid[int(np.argmin(costs))])]
-    x, _, _, ok = _levenberg_marquardt(fun, x0, step=1e-4, lower=[-0.5, -0.6], upper=[0.5, 0.6], max_iter=20)
+    x, cost, _, ok = _levenberg_marquardt(fun, x0, step=1e-4, max_iter=20, **bounds)
+    t_step = None
+    # the step: its time and sign on a grid over the fit half (of the shortest record), then its
+    # size by Levenberg-Marquardt, then the time refined
+    v0 = min(st.views, key=lambda v: v.split)
+    t_fit = v0.split / v0.sample_rate_hz
+    trials = [(_sumsq(make_fun(float(ts))([0.0, g])), float(ts), g)
+              for ts in np.linspace(0.1, 0.9, 9) * t_fit for g in (-0.12, -0.05, 0.05, 0.12)]
+    c_s, ts, g0 = min(trials)
+    # the best trial step, sized by Levenberg-Marquardt, against the ramp
+    xs, cs, _, oks = _levenberg_marquardt(make_fun(ts), [0.0, g0], step=1e-4, max_iter=12, **bounds)
+    if cs < cost:
+        x, cost, ok, t_step = xs, cs, oks, ts
+        for tr in ts + np.linspace(-0.1, 0.1, 9) * t_fit:
+            if not 0 < tr < t_fit:
+                continue
+            xr, cr, _, okr = _levenberg_marquardt(make_fun(float(tr)), x, step=1e-4, max_iter=4, **bounds)
+            if cr < cost:
+                x, cost, ok, t_step = xr, cr, okr, float(tr)
     pred = []
     for v in st.views:
         n = v.n_samples
-        starts, mids = _drift_segments(n, v.sample_rate_hz)
+        starts, mids = segments(v, n, t_step)
         pred.append(modal_response(st.model, v.force, v.sample_rate_hz,
-                                   frequency_scale=scale(x, mids, n / v.sample_rate_hz), segment_starts=starts))
-    params = {"relative_change": float(x[1]), "initial_frequency_scale": float(1.0 + x[0])}
+                                   frequency_scale=scale(x, mids, n / v.sample_rate_hz, t_step),
+                                   segment_starts=starts))
+    # standard errors from the Jacobian at the optimum (forward differences, as the fit's own)
+    fun_best = make_fun(t_step)
+    f0 = fun_best(x)
+    jac = np.column_stack([(fun_best(x + np.eye(2)[j] * 1e-4) - f0) / 1e-4 for j in range(2)])
+    s2 = _sumsq(f0) / max(f0.size - 2, 1)
+    try:
+        change_sigma = float(math.sqrt(max(np.linalg.inv(jac.T @ jac)[1, 1] * s2, 0.0)))
+    except np.linalg.LinAlgError:
+        change_sigma = float("inf")
+    params = {"relative_change": float(x[1]), "relative_change_sigma": change_sigma,
+              "initial_frequency_scale": float(1.0 + x[0]),
+              "form": "gradual" if t_step is None else "step"}
+    if t_step is not None:
+        params["step_time_s"] = t_step
     return Extension("pose_drift", "structure", params, bool(ok), "Levenberg-Marquardt", pred, None, None,
                      {"kind": "drift", "grid_relative_change": grid, "grid_cost": costs})
 
@@ -604,17 +462,42 @@ def fit_process_damping(parts: Parts) -> Extension:
     if c_spec > 0 and (costs[0] - cost(c_spec)) > 9.0 * noise * 1.5:
         thetas = _initial_thetas(parts)
 
+        # the coefficients may re-adjust at every trial (linear least squares on the four columns
+        # of Ktc, Krc, Kac and the edge scale): the harmonics tell C only by what a change of the
+        # coefficients cannot mimic
+        coef0 = parts.views[0].coefficients
+        units = _units(parts.views[0], coef0)
+        basis = coefficient_basis(parts, units)
+        cols = []
+        n_c = len(coefficient_start(coef0, units))
+        for k in range(n_c):
+            xk = np.zeros(n_c)
+            xk[k] = 1.0
+            cols.append(_force_residuals(parts, lambda i, xk=xk: -np.tensordot(expand(xk, coef0, units), basis[i],
+                                                                                axes=1), thetas)
+                        - _force_residuals(parts, lambda i: 0.0 * basis[i][0], thetas))
+        design = np.column_stack(cols)
+
         def chi2(cc):
             eff = Effects(process_damping=ProcessDamping(cc)) if cc > 0 else Effects()
             preds = [parts.force.simulate(v, eff) for v in parts.views] if cc > 0 else parts.force.baseline
-            return _sumsq(_force_residuals(parts, lambda i: preds[i], thetas)), preds
+            r = _force_residuals(parts, lambda i: preds[i], thetas)
+            beta, *_ = np.linalg.lstsq(design, -r, rcond=None)
+            return _sumsq(r + design @ beta), preds
 
         trial = [0.0, 0.6 * c_spec, c_spec, 1.6 * c_spec]
         vals = [chi2(cc)[0] for cc in trial]
-        coef = np.polyfit(trial, vals, 2)
-        c_h = float(-coef[1] / (2.0 * coef[0])) if coef[0] > 0 else float(trial[int(np.argmin(vals))])
-        c_h = min(max(c_h, 0.0), 3.0 * c_spec)
-        v_h = chi2(c_h)[0] if c_h > 0 else vals[0]
+        kb = int(np.argmin(vals))
+        if kb == 0:
+            c_h, v_h = 0.0, vals[0]
+        else:
+            # a bounded search in log C between the neighbours of the best trial (the chi-square is
+            # not a parabola over this range)
+            lo_c = trial[kb - 1] if kb > 1 else 0.3 * c_spec
+            hi_c = trial[kb + 1] if kb + 1 < len(trial) else 3.0 * c_spec
+            res_h = optimize.minimize_scalar(lambda lc: chi2(math.exp(lc))[0], bounds=(math.log(lo_c), math.log(hi_c)),
+                                             method="bounded", options={"xatol": 0.02, "maxiter": 12})
+            c_h, v_h = float(math.exp(res_h.x)), float(res_h.fun)
         # the harmonics decide when they tell C apart: their chi-square separates the spectral
         # estimate from their own optimum by more than 9 (then they are the sharper measurement;
         # at low speed the averaged closed loop of the spectrum is off by tens of percent)

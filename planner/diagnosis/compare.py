@@ -352,11 +352,12 @@ class ForcePart:
                                    view.n_harm, spindle_hz=view.spindle_hz, sample_rate_hz=view.sample_rate_hz,
                                    effects=Effects() if effects is None else effects)
 
-    def analytic(self, view_index: int, **kwargs) -> np.ndarray:
-        """Rigid-tool harmonics with ``kwargs`` of :func:`analytic_harmonics`, plus the baseline's
-        vibration feedback."""
+    def analytic(self, view_index: int, *, coefficients: CuttingCoefficients | None = None, **kwargs) -> np.ndarray:
+        """Rigid-tool harmonics with ``kwargs`` of :func:`analytic_harmonics` (and ``coefficients``
+        instead of the view's), plus the baseline's vibration feedback."""
         v = self.views[view_index]
-        c = analytic_harmonics(v.tool, v.cut, v.coefficients, v.n_harm, spindle_hz=v.spindle_hz,
+        coef = v.coefficients if coefficients is None else coefficients
+        c = analytic_harmonics(v.tool, v.cut, coef, v.n_harm, spindle_hz=v.spindle_hz,
                                sample_rate_hz=v.sample_rate_hz, **kwargs)
         return c + self.correction[view_index]
 
@@ -640,11 +641,13 @@ class Comparison:
 class Parts:
     """The three parts of one set of views, built once (the expensive baseline simulations)."""
 
-    def __init__(self, views: Sequence[RecordView], model: ModalModel):
+    def __init__(self, views: Sequence[RecordView], model: ModalModel, *, structure: "StructurePart | None" = None):
         self.views = list(views)
         self.model = model
         self.force = ForcePart(views, model)
-        self.structure = StructurePart(views, model)
+        # the structure part does not depend on the cutting coefficients (it is driven by the
+        # measured force): a re-fit of the coefficients may share it
+        self.structure = StructurePart(views, model) if structure is None else structure
         self.stability = StabilityPart(views, model)
         self.base_force = {h: self.force.evaluate(h, self.force.baseline) for h in ("fit", "val")}
         self.base_structure = self.structure.evaluate(self.structure.baseline) if self.structure.views else None

@@ -2,27 +2,34 @@
 better the extended model predicts.
 
 1. Compare (:mod:`~planner.diagnosis.compare`): force, structure and stability parts, each record
-   split into a fit half and a validation half.
-2. Fit every candidate cause on the fit halves (:mod:`~planner.diagnosis.causes`) and predict its
-   part on the validation halves.
-3. Score: ``gain = (e_before - e_after) / e_before`` of the candidate's part on the validation
-   halves, and its significance ``z`` (the reduction of the validation residual over the standard
-   deviation the noise alone would give it, :func:`~planner.diagnosis.compare.significance`).
-4. Name the cause. A candidate qualifies in a part that disagrees with the measurement beyond its
+   split into a fit half and a validation half, with the nominal cutting coefficients.
+2. Re-fit the cutting coefficients on the fit halves (:mod:`~planner.diagnosis.coefficients`): the
+   baseline every other cause must beat. ``cutting_coefficients`` is scored as the re-fitted
+   baseline against the nominal one.
+3. Fit every other candidate cause on the fit halves on top of the re-fitted coefficients
+   (:mod:`~planner.diagnosis.causes`) and predict its part on the validation halves.
+4. Score: ``gain = (e_before - e_after) / e_before`` of the candidate's part on the validation
+   halves (against the re-fitted baseline), and its significance ``z`` (the reduction of the
+   validation residual over the standard deviation the noise alone would give it,
+   :func:`~planner.diagnosis.compare.significance`).
+5. Name the cause. A candidate qualifies in a part that disagrees with the measurement beyond its
    noise (``disagreement >= min_significance``) when its own reduction there is significant (``z
    >= min_significance``; 3: a spurious extension reaches it with probability below 0.2 %, since
-   its expected reduction is negative) and ``gain >= min_gain``. Among the qualified, the one that
-   explains the most disagreement wins: ``score = sum over the parts it predicts of gain x
-   disagreement`` (in standard deviations of each part's noise power, so that parts compare;
-   within one part this is the order of the gains). ``none`` if no candidate qualifies. An
-   extension may predict more than its own part: process damping also changes the force
-   harmonics (through the forced vibration), which the simulator predicts.
+   its expected reduction is negative), ``gain >= min_gain`` (the share of the part's error it
+   removes) and its fitted size passes its practical floor (:mod:`~planner.diagnosis.floors`:
+   twice its standard error and a physically argued amount). Among the qualified, an effect beats
+   the coefficients (it survived their re-fit; the re-fit is reported beside it), and among
+   effects the one that explains the most disagreement wins: ``score = sum over the parts it
+   predicts of gain x disagreement`` (in standard deviations of each part's noise power, so that
+   parts compare). ``none`` if no candidate qualifies. An extension may predict more than its own
+   part: process damping also changes the force harmonics (through the forced vibration), which
+   the simulator predicts; the coefficients also change the closed-loop spectrum.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -34,6 +41,8 @@ from oma.record import Record
 from oma.spectra import welch_spectra
 
 from .causes import CANDIDATES, Extension, fit_candidate
+from .coefficients import CoefficientFit, fit_coefficients
+from .floors import FLOORS, practical_size
 from .compare import (Comparison, PartEvaluation, Parts, align_angle, prepare_views, record_comparisons, rotate,
                       significance)
 from .forcemodel import sensor_gain
@@ -41,7 +50,9 @@ from .forcemodel import sensor_gain
 __all__ = ["CandidateResult", "Diagnosis", "diagnose", "CAUSE_NAMES"]
 
 #: Every value of ``Diagnosis.cause``.
-CAUSE_NAMES = ("none",) + tuple(CANDIDATES)
+CAUSE_NAMES = ("none",) + tuple(CANDIDATES) + ("cutting_coefficients",)
+#: The candidates a diagnosis tries, in the order of cli.md.
+CANDIDATE_NAMES = CAUSE_NAMES[1:]
 
 
 def _num(x):
@@ -106,9 +117,11 @@ class CandidateResult:
     disagreement: float = float("nan")
     score: float = 0.0
     parts: dict = field(default_factory=dict)
+    practical: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"cause": self.cause, "gain": _num(self.gain), "significance": _num(self.significance),
+                "practical": _plain(self.practical),
                 "part": self.part, "error_before": _num(self.error_before), "error_after": _num(self.error_after),
                 "disagreement": _num(self.disagreement), "score": _num(self.score),
                 "parts": {k: {kk: _num(vv) for kk, vv in v.items()} for k, v in self.parts.items()},
@@ -157,6 +170,7 @@ class Diagnosis:
     min_significance: float
     min_gain: float
     plot_data: dict = field(default_factory=dict, repr=False)
+    coefficient_fit: CoefficientFit | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         """The ``robomill diagnose --json`` object (cli.md), plus the comparison's part errors."""
@@ -171,7 +185,10 @@ class Diagnosis:
             "significance": _num(self.significance),
             "errors": {k: _num(v) for k, v in self.comparison.errors.items()},
             "records": [r.to_dict() for r in self.comparison.records],
-            "thresholds": {"min_significance": self.min_significance, "min_gain": self.min_gain},
+            "thresholds": {"min_significance": self.min_significance, "min_gain": self.min_gain,
+                           "practical_floors": {k: v[0] for k, v in FLOORS.items()}},
+            "baseline_coefficients": (self.coefficient_fit.to_dict() if self.coefficient_fit is not None
+                                      else None),
         }
 
     def plot(self, *, figsize=(12.0, 8.5)):
@@ -204,6 +221,13 @@ def _score(parts: Parts, cause: str) -> CandidateResult:
                 "pose_drift": "structure", "process_damping": "stability"}.get(cause, "force")
         return CandidateResult(cause, part, float("nan"), float("nan"), float("nan"), float("nan"), {}, False,
                                f"fit failed: {exc}")
+    return _score_extension(parts, ext)
+
+
+def _score_extension(parts: Parts, ext: Extension) -> CandidateResult:
+    """Validation gain and significance of a fitted extension in each part it predicts, against the
+    baseline of ``parts``; its practical size against its floor (:mod:`~planner.diagnosis.floors`)."""
+    cause = ext.cause
     if not ext.prediction:
         return CandidateResult(cause, ext.part, float("nan"), float("nan"), float("nan"), float("nan"),
                                ext.parameters, False, ext.message, ext)
@@ -218,9 +242,21 @@ def _score(parts: Parts, cause: str) -> CandidateResult:
                           "explained": max(gain, 0.0) * max(dis, 0.0) if math.isfinite(gain) else 0.0}
     main = max(per_part, key=lambda k: per_part[k]["explained"]) if len(per_part) > 1 else ext.part
     m = per_part[main]
+    practical = practical_size(cause, ext.parameters, parts, ext)
     return CandidateResult(cause, main, m["gain"], m["significance"], m["error_before"], m["error_after"],
                            ext.parameters, ext.success, ext.message, ext, m["disagreement"],
-                           float(sum(v["explained"] for v in per_part.values())), per_part)
+                           float(sum(v["explained"] for v in per_part.values())), per_part, practical)
+
+
+def _score_coefficients(nominal: Parts, refit: Parts, fit: CoefficientFit) -> CandidateResult:
+    """The re-fitted coefficients as a cause: the refit's baseline against the nominal one."""
+    from .forcefits import _harmonic_evidence
+
+    pred = list(refit.force.baseline)
+    ext = Extension("cutting_coefficients", "force", dict(fit.parameters), fit.success, fit.message, pred,
+                    evidence=_harmonic_evidence(nominal, pred),
+                    other_predictions={"stability": list(refit.base_logs["val"])})
+    return _score_extension(nominal, ext)
 
 
 # ------------------------------------------------------------------------------- plot arrays
@@ -319,7 +355,7 @@ def _plot_data(parts: Parts, best: CandidateResult) -> dict:
 # ---------------------------------------------------------------------------------- diagnose
 def diagnose(records: Sequence[Record], model: ModalModel, *, coefficients: CuttingCoefficients | None = None,
              causes: Sequence[str] | None = None, min_significance: float = 3.0, min_gain: float = 0.2,
-             plot_data: bool = True) -> Diagnosis:
+             refit_coefficients: bool = True, plot_data: bool = True) -> Diagnosis:
     """Compare records with robomill's simulation, name the cause of the disagreement, measure the gain.
 
     Parameters
@@ -338,6 +374,9 @@ def diagnose(records: Sequence[Record], model: ModalModel, *, coefficients: Cutt
         Smallest ``z`` of a named cause.
     min_gain : float
         Smallest validation gain of a named cause.
+    refit_coefficients : bool
+        Re-fit the cutting coefficients first and measure every other cause against them (module
+        notes); ``False`` keeps the nominal ones (and drops ``cutting_coefficients``).
     plot_data : bool
         Keep the arrays :meth:`Diagnosis.plot` needs.
 
@@ -355,21 +394,34 @@ def diagnose(records: Sequence[Record], model: ModalModel, *, coefficients: Cutt
     """
     if not records:
         raise InputError(None, "records", "at least one record", "none")
-    names = tuple(CANDIDATES) if causes is None else tuple(causes)
+    names = CANDIDATE_NAMES if causes is None else tuple(causes)
     for c in names:
-        if c not in CANDIDATES:
-            raise ValueError(f"cause must be one of {', '.join(CANDIDATES)}, not {c!r}")
+        if c not in CANDIDATE_NAMES:
+            raise ValueError(f"cause must be one of {', '.join(CANDIDATE_NAMES)}, not {c!r}")
     views = prepare_views(records, coefficients=coefficients)
-    parts = Parts(views, model)
-    comparison = Comparison(errors=parts.errors(), records=record_comparisons(parts))
-    results = [_score(parts, c) for c in names]
-
-    def key(r):
-        return (0 if math.isfinite(r.gain) else 1, -r.score, -(r.gain if math.isfinite(r.gain) else 0.0))
+    nominal = Parts(views, model)
+    comparison = Comparison(errors=nominal.errors(), records=record_comparisons(nominal))
+    fit = None
+    parts = nominal
+    same = all(v.coefficients == views[0].coefficients for v in views)
+    if refit_coefficients and same:
+        # the baseline every other cause must beat: the coefficients re-fitted on the fit halves
+        fit = fit_coefficients(nominal)
+        parts = Parts([replace(v, coefficients=fit.fitted) for v in views], model, structure=nominal.structure)
+    results = [_score(parts, c) for c in names if c != "cutting_coefficients"]
+    if fit is not None and "cutting_coefficients" in names:
+        results.append(_score_coefficients(nominal, parts, fit))
 
     def qualifies(r):
-        return any(math.isfinite(p["gain"]) and p["significance"] >= min_significance and p["gain"] >= min_gain
-                   and p["disagreement"] >= min_significance for p in r.parts.values())
+        return r.practical.get("passes", False) and any(
+            math.isfinite(p["gain"]) and p["significance"] >= min_significance and p["gain"] >= min_gain
+            and p["disagreement"] >= min_significance for p in r.parts.values())
+
+    def key(r):
+        # a cause that survives on top of the re-fitted coefficients is the more specific finding:
+        # qualified effects first, then the coefficients, then the rest; each by disagreement explained
+        tier = 0 if qualifies(r) and r.cause != "cutting_coefficients" else 1 if qualifies(r) else 2
+        return (0 if math.isfinite(r.gain) else 1, tier, -r.score, -(r.gain if math.isfinite(r.gain) else 0.0))
 
     ranking = tuple(sorted(results, key=key))
     eligible = [r for r in ranking if qualifies(r)]
@@ -381,10 +433,10 @@ def diagnose(records: Sequence[Record], model: ModalModel, *, coefficients: Cutt
         best = ranking[0]
         cause, params, gain, z = "none", {}, 0.0, 0.0
         e_b = e_a = best.error_before if math.isfinite(best.error_before) else comparison.errors["force"]
-    data = _plot_data(parts, best) if plot_data else {}
+    data = _plot_data(nominal if best.cause == "cutting_coefficients" else parts, best) if plot_data else {}
     if cause == "none" and data:
         data["cause"] = "none"
     return Diagnosis(cause=cause, parameters=params, error_before=float(e_b), error_after=float(e_a),
                      gain=float(gain), significance=float(z), part=best.part,
                      ranking=ranking, comparison=comparison, min_significance=float(min_significance),
-                     min_gain=float(min_gain), plot_data=data)
+                     min_gain=float(min_gain), plot_data=data, coefficient_fit=fit)

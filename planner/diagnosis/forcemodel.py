@@ -22,13 +22,34 @@ import numpy as np
 
 from oma.cutting import Cut, CuttingCoefficients, Tool, engagement_angles
 from oma.modal import ModalModel
-from stability.simulate import (ANTI_ALIAS_FRACTION, ANTI_ALIAS_ORDER, Effects, default_axial_slices,
+from dataclasses import dataclass
+
+from stability.simulate import (ANTI_ALIAS_FRACTION, ANTI_ALIAS_ORDER, Effects, Runout, default_axial_slices,
                                 simulate)
 
 from .spectral import harmonic_coefficients
 
-__all__ = ["periodic_force", "analytic_harmonics", "simulated_harmonics", "anti_alias_gain",
+__all__ = ["ToothRadiiRunout", "periodic_force", "analytic_harmonics", "simulated_harmonics", "anti_alias_gain",
            "sensor_gain"]
+
+
+@dataclass(frozen=True)
+class ToothRadiiRunout(Runout):
+    """Runout as unequal tooth radii: tooth ``j`` cuts on ``R + offsets_m[j]`` (no eccentric axis).
+
+    The simulator asks a runout only for its chip increments (``rho_j - rho_{j+1}``), so this
+    form runs through :func:`stability.simulate.simulate` unchanged; ``amplitude_m`` is unused
+    (0). Any pattern of radii is one of these; an eccentric axis is the special case
+    ``rho_j = A cos(phase - 2 pi j / N)``.
+    """
+
+    offsets_m: tuple = ()
+
+    def radii_offsets(self, teeth: int) -> np.ndarray:
+        off = np.zeros(teeth)
+        vals = np.asarray(self.offsets_m, dtype=float)[:teeth]
+        off[:vals.size] = vals
+        return off
 
 
 def anti_alias_gain(freq_hz, sample_rate_hz: float) -> np.ndarray:
