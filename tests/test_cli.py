@@ -167,4 +167,4 @@ def test_diagnose_on_the_clean_example_names_no_cause(capsys):
     assert p["cause"] == "none"  # simulated with exactly this model: nothing to explain
     assert {r["cause"] for r in p["ranking"]} == {"runout", "force_sensor_dynamics", "channel_delay",
                                                   "process_damping", "unmodeled_mode", "cross_coupling",
-                                                  "pose_drift", "nonlinear_cutting"}
+                                                  "pose_drift", "nonlinear_cutting", "cutting_coefficients"}
