@@ -65,11 +65,12 @@ def _human(d: dict) -> str:
              f"reachable rows: {d['counts']['reachable']} of {d['counts']['rows']}, "
              f"with a stable cut: {d['counts']['stable_cut']}"]
     if b is not None:
-        lines.append(f"best: x {b['x_m']:.3f} y {b['y_m']:.3f} z {b['z_m']:.3f} m, rotation {b['rotation_deg']:.1f} deg, "
-                     f"{b['spindle_rpm']:.0f} rpm, ap {b['axial_depth_m'] * 1e3:.2f} mm, "
-                     f"MRR {b['mrr_m3_s'] * 6e7:.1f} cm^3/min ({b['active_constraint']})"
-                     + (f"; SDM: limit {b['sdm_depth_limit_m'] * 1e3:.2f} mm, MRR {b['sdm_mrr_m3_s'] * 6e7:.1f} cm^3/min"
-                        if b["stability"] == "sdm" else ""))
+        line = (f"best: x {b['x_m']:.3f} y {b['y_m']:.3f} z {b['z_m']:.3f} m, rotation {b['rotation_deg']:.1f} deg, "
+                f"{b['spindle_rpm']:.0f} rpm, ap {b['axial_depth_m'] * 1e3:.2f} mm, "
+                f"MRR {b['mrr_m3_s'] * 6e7:.1f} cm^3/min ({b['active_constraint']})")
+        if b["stability"] == "sdm":
+            line += f"; SDM: limit {b['sdm_depth_limit_m'] * 1e3:.2f} mm, MRR {b['sdm_mrr_m3_s'] * 6e7:.1f} cm^3/min"
+        lines.append(line)
     return "\n".join(lines)
 
 
