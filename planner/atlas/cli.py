@@ -95,7 +95,11 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     out_dir = Path(args.output)
     if out_dir.exists() and not out_dir.is_dir():
         raise UsageError("-o", "a directory", f"{args.output!r} (a file)")
-    if not args.verbose:  # the scheduler of a local cluster runs in this process: its INFO lines are noise
+    if not args.verbose and args.scheduler != "serial":
+        # a local cluster's scheduler runs in this process: its INFO lines are noise on stderr. (Set
+        # after importing distributed, whose import configures its loggers.)
+        import distributed  # noqa: F401
+
         logging.getLogger("distributed").setLevel(logging.ERROR)
     robot = read_robot(args.robot)
     setup = read_setup(args.setup)
