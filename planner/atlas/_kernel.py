@@ -27,6 +27,9 @@ __all__ = ["atlas_kernel"]
 
 _TWO_PI = 2.0 * math.pi
 
+#: The compiled helpers of :mod:`stability.zoa_batch`, bound by :func:`atlas_kernel` before compiling.
+_k_lam = _k_depth_phase = _k_limit = None
+
 
 def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_hi, hi_code, c_pow, margin,
             out_env_min, out_rpm, out_ap, out_limit, out_freq, out_code, out_env):

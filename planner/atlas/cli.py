@@ -65,11 +65,12 @@ def _human(d: dict) -> str:
              f"reachable rows: {d['counts']['reachable']} of {d['counts']['rows']}, "
              f"with a stable cut: {d['counts']['stable_cut']}"]
     if b is not None:
-        lines.append(f"best: x {b['x_m']:.3f} y {b['y_m']:.3f} z {b['z_m']:.3f} m, rotation {b['rotation_deg']:.1f} deg, "
-                     f"{b['spindle_rpm']:.0f} rpm, ap {b['axial_depth_m'] * 1e3:.2f} mm, "
-                     f"MRR {b['mrr_m3_s'] * 6e7:.1f} cm^3/min ({b['active_constraint']})"
-                     + (f"; SDM: limit {b['sdm_depth_limit_m'] * 1e3:.2f} mm, MRR {b['sdm_mrr_m3_s'] * 6e7:.1f} cm^3/min"
-                        if b["stability"] == "sdm" else ""))
+        line = (f"best: x {b['x_m']:.3f} y {b['y_m']:.3f} z {b['z_m']:.3f} m, rotation {b['rotation_deg']:.1f} deg, "
+                f"{b['spindle_rpm']:.0f} rpm, ap {b['axial_depth_m'] * 1e3:.2f} mm, "
+                f"MRR {b['mrr_m3_s'] * 6e7:.1f} cm^3/min ({b['active_constraint']})")
+        if b["stability"] == "sdm":
+            line += f"; SDM: limit {b['sdm_depth_limit_m'] * 1e3:.2f} mm, MRR {b['sdm_mrr_m3_s'] * 6e7:.1f} cm^3/min"
+        lines.append(line)
     return "\n".join(lines)
 
 
@@ -94,7 +95,11 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     out_dir = Path(args.output)
     if out_dir.exists() and not out_dir.is_dir():
         raise UsageError("-o", "a directory", f"{args.output!r} (a file)")
-    if not args.verbose:  # the scheduler of a local cluster runs in this process: its INFO lines are noise
+    if not args.verbose and args.scheduler != "serial":
+        # a local cluster's scheduler runs in this process: its INFO lines are noise on stderr. (Set
+        # after importing distributed, whose import configures its loggers.)
+        import distributed  # noqa: F401
+
         logging.getLogger("distributed").setLevel(logging.ERROR)
     robot = read_robot(args.robot)
     setup = read_setup(args.setup)

@@ -70,8 +70,7 @@ def _panels(result, values, *, cmap, label, title, vmin=None, vmax=None, fig=Non
 def plot_mrr_map(result, *, fig=None):
     """The best stable removal rate (cm^3/min) at each position's best rotation."""
     mrr = result.per_point("mrr_m3_s") * 6e7
-    title = ("best stable MRR at each position's best tool rotation (grey: no stable cut; "
-             "star: best placement)")
+    title = "best stable MRR at each position's best tool rotation\n(grey: no stable cut; star: best placement)"
     return _panels(result, mrr, cmap="viridis", label="MRR (cm$^3$/min)", title=title, fig=fig)
 
 
@@ -79,5 +78,6 @@ def plot_best_rotation(result, *, fig=None):
     """The tool rotation (deg) with the largest stable MRR (then stability reserve) per position."""
     rot = result.per_point("rotation_deg")
     return _panels(result, rot, cmap="twilight", label="best rotation about the tool axis (deg)",
-                   title="best tool rotation per position (largest MRR; ties: largest stability reserve, then largest limit over the speed range)",
+                   title=("best tool rotation per position\n(largest MRR; ties: largest stability reserve, "
+                          "then largest limit over the speed range)"),
                    vmin=-180.0, vmax=180.0, fig=fig)

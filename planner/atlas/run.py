@@ -90,8 +90,9 @@ class AtlasResult:
         return np.where(rows >= 0, values[np.maximum(rows, 0)], np.nan)
 
     def to_dict(self) -> dict:
-        return {"points": self.n_points, "rotations": int(self.region.rotations_deg.size), "region": self.region.to_dict(),
-                "problem": self.problem, "counts": self.counts(), "best": self.best, "engine": self.engine}
+        return {"points": self.n_points, "rotations": int(self.region.rotations_deg.size),
+                "region": self.region.to_dict(), "problem": self.problem, "counts": self.counts(), "best": self.best,
+                "engine": self.engine}
 
     def plot(self, which: str = "mrr", **kwargs):
         """``which='mrr'``: :func:`planner.atlas.plots.plot_mrr_map`; ``'rotation'``:
