@@ -243,7 +243,7 @@ def _cmd_demo(args) -> int:
 
 #: Command groups that live in their own sub-package; each module has ``add_parsers(sub)``, which
 #: adds its subcommands (with ``handler`` defaults) to the ``robomill`` subparsers.
-COMMAND_GROUPS: tuple[str, ...] = ()
+COMMAND_GROUPS: tuple[str, ...] = ("planner.learn.cli",)
 
 
 def build_parser() -> argparse.ArgumentParser:
