@@ -13,7 +13,7 @@ import numpy as np
 
 from planner.cli_common import EXIT_OK, UsageError, add_json, emit, save_figure
 
-__all__ = ["add_parsers", "parse_prior_sd"]
+__all__ = ["add_parsers", "parse_prior_sd", "chance_constraint", "posterior_lobes"]
 
 _GROUPS = ("frequency", "stiffness", "damping", "coefficients")
 
@@ -148,3 +148,36 @@ def _human(d, result) -> str:
     if d.get("posterior"):
         lines.append(f"posterior model: {d['posterior']}")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------- used by `plan` and `lobes` (planner.cli)
+def chance_constraint(model_path, setup, *, probability: float = 0.95):
+    """For ``plan``: ``(stability_limit, learned)`` when the model carries ``x_posterior`` (the
+    depth stable with ``probability``, and what was learned, for the report), else ``(None, None)``."""
+    from .posterior_io import read_posterior
+    from .predictive import ChanceLimit
+
+    if not 0 < probability < 1:
+        raise UsageError("--probability", "a probability in (0, 1)", repr(probability))
+    post = read_posterior(model_path)
+    if post is None or setup.limits.spindle_rpm is None:
+        return None, None
+    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=probability)
+    learned = {"probability": float(probability), "samples": int(post.samples.shape[0]),
+               "method": post.method, "cause": post.cause(), "parameters": post.parameters(),
+               "note": f"stability: P(stable) >= {probability:g} under the posterior learned from test cuts "
+                       "(the chance constraint replaces the stability margin)"}
+    return limit, learned
+
+
+def posterior_lobes(model_path, setup, rpm_range):
+    """For ``lobes``: the probability lobes when the model carries ``x_posterior`` (else ``None``)."""
+    from pathlib import Path
+
+    from .posterior_io import read_posterior
+    from .predictive import probability_lobes
+
+    if len(model_path) != 1 or Path(model_path[0]).suffix.lower() not in (".yaml", ".yml"):
+        return None
+    post = read_posterior(model_path[0])
+    return None if post is None else probability_lobes(post, setup, rpm_range)

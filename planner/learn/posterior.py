@@ -154,6 +154,9 @@ class Posterior:
     log_posterior : ndarray, shape (n_samples,)
         Unnormalised log posterior of each sample (for the MAP); may be empty when read from file.
     likelihood : Likelihood
+    method : str
+        The stability method the samples were learned with (``sdm``, ``zoa``, ``auto``): whoever
+        uses them computes limits the same way.
     """
 
     reference: ModalModel
@@ -162,6 +165,7 @@ class Posterior:
     samples: np.ndarray
     log_posterior: np.ndarray = field(default_factory=lambda: np.zeros(0))
     likelihood: Likelihood = Likelihood()
+    method: str = "sdm"
 
     @property
     def map_index(self) -> int:

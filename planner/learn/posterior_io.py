@@ -14,6 +14,7 @@ of modal models reads it (they ignore ``x_`` keys). Beside it::
         Krc_N_m2: 2.1e8
       prior_log_sd: [...]            # 0: a group held fixed
       likelihood: {mislabel: 0.05, boundary_scale: 0.03, ...}
+      method: sdm                    # how the limits were computed (sdm, zoa, auto)
       map_coefficients: {Ktc_N_m2: ..., Krc_N_m2: ...}
       samples: [[u_f, u_k, u_zeta, u_Ktc, u_Krc], ...]   # log-multipliers, equally weighted,
                                                           # the MAP sample first
@@ -56,6 +57,7 @@ def posterior_to_dict(posterior: Posterior, *, max_samples: int = 500) -> dict:
                       "damping_ratio": ref.damping_ratio, "Ktc_N_m2": posterior.coefficients.Ktc_N_m2,
                       "Krc_N_m2": posterior.coefficients.Krc_N_m2},
         "prior_log_sd": posterior.prior_log_sd, "likelihood": posterior.likelihood.to_dict(),
+        "method": posterior.method,
         "map_coefficients": {"Ktc_N_m2": coef.Ktc_N_m2, "Krc_N_m2": coef.Krc_N_m2},
         "samples": post.samples,
     }
@@ -109,7 +111,10 @@ def read_posterior(path) -> Posterior | None:
     likelihood = Likelihood(**{k_: float(v) for k_, v in lk.items() if k_ in Likelihood.__dataclass_fields__})
     if samples.shape[0] == 0 or sd.shape != (len(PARAMETERS),):
         raise ModelError(path, "x_posterior.samples", "at least one sample of 5 log-multipliers", f"{samples.shape}")
+    method = node.get("method", "sdm")
+    if method not in ("sdm", "zoa", "auto"):
+        raise ModelError(path, "x_posterior.method", "sdm, zoa or auto", repr(method))
     mark = np.full(samples.shape[0], -1.0)
     mark[0] = 0.0  # the writer puts the MAP sample first
     return Posterior(reference=reference, coefficients=coef, prior_log_sd=sd, samples=samples,
-                     log_posterior=mark, likelihood=likelihood)
+                     log_posterior=mark, likelihood=likelihood, method=method)

@@ -13,7 +13,7 @@ from .outcomes_io import CutTable
 from .posterior import Posterior
 from .tables import Grid, LimitTable, build_table
 
-__all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "chance_limit"]
+__all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "ChanceLimit"]
 
 
 def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
@@ -25,12 +25,13 @@ def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
     return Grid.covering(u[:, 0], u[:, 2], u[:, 4] - u[:, 3], bounds=bounds, step=step, max_zeta=3, max_ratio=2)
 
 
-def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: str, grid: Grid | None) -> LimitTable:
+def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: str | None,
+           grid: Grid | None) -> LimitTable:
     return build_table(posterior.reference, setup.tool, setup.cut, posterior.coefficients, rpm, radial_depth_m,
-                       down, grid or predictive_grid(posterior), method=method)
+                       down, grid or predictive_grid(posterior), method=method or posterior.method)
 
 
-def predict_cuts(posterior: Posterior, setup, cuts: CutTable, *, method: str = "sdm",
+def predict_cuts(posterior: Posterior, setup, cuts: CutTable, *, method: str | None = None,
                  grid: Grid | None = None) -> np.ndarray:
     """Posterior probability that each cut is stable, shape (n_cuts,)."""
     table = _table(posterior, setup, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, method=method, grid=grid)
@@ -68,7 +69,7 @@ class ProbabilityLobes:
         return plot_probability_lobes(self, ax=ax, cuts=cuts)
 
 
-def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 150, method: str = "sdm",
+def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 150, method: str | None = None,
                       levels=(0.05, 0.5, 0.95), radial_depth_m: float | None = None, milling: str | None = None,
                       max_samples: int = 400, grid: Grid | None = None) -> ProbabilityLobes:
     """Lobes with probability contours at the setup's engagement (or the one given)."""
@@ -84,17 +85,43 @@ def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 15
                             quantiles=quant, radial_depth_m=ae, milling=mill)
 
 
-def chance_limit(posterior: Posterior, setup, rpm, *, probability: float = 0.95, method: str = "sdm",
-                 max_samples: int = 400) -> np.ndarray:
-    """Depth (m) at each speed below which the cut of ``setup`` is stable with ``probability``:
-    the ``1 - probability`` quantile of the posterior's limit (the chance constraint of ``plan``)."""
-    if not 0 < probability < 1:
-        raise ValueError(f"probability must be in (0, 1), found {probability}")
-    rpm = np.atleast_1d(np.asarray(rpm, dtype=float))
-    post = posterior.thinned(max_samples)
-    table = _table(post, setup, rpm, np.full(rpm.size, setup.cut.radial_depth_m),
-                   np.full(rpm.size, setup.cut.milling == "down"), method=method, grid=None)
-    return np.quantile(np.exp(post.log_limits(table)), 1.0 - probability, axis=0)
+class ChanceLimit:
+    """The depth (m) below which the cut of ``setup`` is stable with ``probability``, at any speed
+    in ``rpm_range``: the ``1 - probability`` quantile of the posterior's limit (the chance
+    constraint of ``plan``). The limit table is built once over the range; each call interpolates.
+
+    Parameters
+    ----------
+    posterior : Posterior
+    setup : stability.setup.Setup
+        Its cut (engagement) is the one planned.
+    rpm_range : (float, float)
+    probability : float
+        In (0, 1), e.g. 0.95.
+    """
+
+    def __init__(self, posterior: Posterior, setup, rpm_range, *, probability: float = 0.95,
+                 method: str | None = None, max_samples: int = 400):
+        if not 0 < probability < 1:
+            raise ValueError(f"probability must be in (0, 1), found {probability}")
+        self.probability = float(probability)
+        self.rpm_range = (float(min(rpm_range)), float(max(rpm_range)))
+        self.posterior = posterior.thinned(max_samples)
+        # grid speeds closer than the lattice step, so the lattice covers the whole range
+        step = predictive_grid(self.posterior).log_speed_step
+        n_rpm = int(np.ceil(np.log(self.rpm_range[1] / self.rpm_range[0]) / step)) + 2
+        rpm = np.geomspace(*self.rpm_range, n_rpm)
+        self._table = _table(self.posterior, setup, rpm, np.full(rpm.size, setup.cut.radial_depth_m),
+                             np.full(rpm.size, setup.cut.milling == "down"), method=method, grid=None)
+
+    def samples(self, rpm) -> np.ndarray:
+        """Every sample's limit at the speeds, (n_samples, n_rpm), m."""
+        rpm = np.clip(np.atleast_1d(np.asarray(rpm, dtype=float)), *self.rpm_range)
+        table = replace(self._table, rpm=rpm, group=np.zeros(rpm.size, dtype=int))
+        return np.exp(self.posterior.log_limits(table))
+
+    def __call__(self, rpm) -> np.ndarray:
+        return np.quantile(self.samples(rpm), 1.0 - self.probability, axis=0)
 
 
 def with_engagement(setup, radial_depth_m: float, milling: str):

@@ -149,7 +149,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     p_each = 1.0 - likelihood.p_chatter(log_a[None, :] - lb)
     log_prior = -0.5 * np.sum((res.samples / sd[active]) ** 2, axis=1)
     post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u,
-                     log_posterior=tt.sum(axis=1) + log_prior, likelihood=likelihood)
+                     log_posterior=tt.sum(axis=1) + log_prior, likelihood=likelihood, method=method)
     # the prior's own prediction: fresh prior samples (no data used, so no cross-validation needed)
     u0 = np.zeros((n_particles, 5))
     u0[:, active] = np.random.default_rng(seed + 1).standard_normal((n_particles, active.size)) * sd[active]
