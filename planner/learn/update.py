@@ -140,7 +140,8 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         u0 = full(res0.samples)
         stages.append(time.perf_counter() - t0)
         table = table_for(prior, setup, cuts, Grid.covering(u0[:, 0], u0[:, 2], u0[:, 4] - u0[:, 3],
-                                                            bounds=grid_for(sd)), method=method)
+                                                            bounds=grid_for(sd), max_zeta=3, max_ratio=2),
+                          method=method)
     t1 = time.perf_counter()
     res = smc(lambda x: terms(full(x), table)[0].sum(axis=1), sd[active], rng=rng, n_particles=n_particles)
     t2 = time.perf_counter()
