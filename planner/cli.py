@@ -35,12 +35,17 @@ def _cmd_lobes(args) -> int:
 
     setup = read_setup(args.setup)
     structure = structure_from_args(args, frf=True)
+    from planner.learn.cli import posterior_lobes
+
     diagram = lobe_diagram(structure, setup.tool, setup.cut, coefficients(setup, args.setup),
                            rpm_range=rpm_range(args, setup), method=args.method, n_rpm=args.n_rpm)
+    learned = posterior_lobes(args.model, setup, rpm_range(args, setup)) if args.model else None  # x_posterior
     if args.output:
-        fig, _ = diagram.plot()
+        fig, _ = (learned or diagram).plot()
         save_figure(fig, args.output)
     payload = diagram.to_dict()
+    if learned is not None:
+        payload["probability_lobes"] = learned.to_dict()
     emit(args, payload, lambda p: (
         f"{p['method']} lobes, {len(p['rpm'])} speeds; smallest limit depth "
         f"{1e3 * diagram.min_depth_limit_m:.3f} mm" + (f"; figure: {args.output}" if args.output else "")))
@@ -159,13 +164,19 @@ def _cmd_plan(args) -> int:
     from planner.optimize import plan
     from stability.setup_io import read_setup
 
+    from planner.learn.cli import chance_constraint
+
     setup = read_setup(args.setup)
     model = structure_from_args(args)
-    result = plan(setup, model, method=args.method)
+    limit, learned = (chance_constraint(args.model, setup, probability=args.probability) if args.model
+                      else (None, None))  # a model with x_posterior: the chance constraint
+    result = plan(setup, model, method=args.method, stability_limit=limit)
     if args.output:
         fig, _ = result.plot()
         save_figure(fig, args.output)
     payload = result.to_dict()
+    if learned is not None:
+        payload["learned"] = learned
 
     def human(p):
         if not p["success"]:
@@ -251,7 +262,8 @@ def _cmd_demo(args) -> int:
 
 #: Command groups that live in their own sub-package; each module has ``add_parsers(sub)``, which
 #: adds its subcommands (with ``handler`` defaults) to the ``robomill`` subparsers.
-COMMAND_GROUPS: tuple[str, ...] = ("planner.robot.cli", "planner.robot.posture_cli", "planner.atlas.cli")
+COMMAND_GROUPS: tuple[str, ...] = ("planner.robot.cli", "planner.robot.posture_cli", "planner.atlas.cli",
+                                   "planner.learn.cli")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -281,6 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["auto", "zoa", "sdm"], default="auto",
                    help="stability limit: auto = SDM below ae/D 0.2 (flip lobes), else ZOA")
     p.add_argument("-o", "--output", default=None, help="figure of the lobes with the optimum")
+    p.add_argument("--probability", type=float, default=0.95,
+                   help="with a learned posterior (x_posterior): plan for P(stable) >= this")
     add_json(p)
     p.set_defaults(handler=_cmd_plan)
 

@@ -68,7 +68,7 @@ from stability.lobes import LobeDiagram, OperatingPoint, predict_point
 from stability.sdm import as_modal_model
 
 from .cut_model import CutModel
-from .pockets import Pocket, build_pockets, cheb_eval, sdm_pockets, zoa_pockets
+from .pockets import Pocket, build_pockets, cheb_eval, sampled_pockets, sdm_pockets, zoa_pockets
 
 __all__ = ["PlanSettings", "PocketResult", "Plan", "plan", "CONSTRAINTS"]
 
@@ -586,7 +586,8 @@ def _refine_sdm(prob, pockets, results, samples, sdm_limit, setup, settings: Pla
                                  mrr_m3_s=_mrr(setup, x) if ok else np.nan, solver_status=status, feasible=ok)
 
 
-def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | None = None) -> Plan:
+def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | None = None,
+         stability_limit=None) -> Plan:
     """Spindle speed, axial depth and feed per tooth with the largest removal rate.
 
     Parameters
@@ -602,6 +603,11 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
         Stability model; ``'auto'`` takes the SDM below ``settings.sdm_below_immersion`` radial
         immersion, the ZOA otherwise.
     settings : PlanSettings, optional
+    stability_limit : callable, optional
+        ``rpm_array -> depth_array``, m: a limit to plan against instead of the model's, e.g. the
+        depth stable with a stated probability under a learned posterior (the chance constraint,
+        :class:`planner.learn.predictive.ChanceLimit`). The margin factor is then not applied
+        (the limit carries its own safety); the re-check takes its limit from it too.
 
     Returns
     -------
@@ -628,12 +634,16 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
     if hasattr(structure, "freq_hz") and not hasattr(structure, "natural_frequency_hz"):
         raise ValueError("plan needs a modal model: the surface-error model of the NLP is analytic in "
                          "speed; fit a modal model to the measured FRF first")
+    if stability_limit is not None:  # a chance constraint replaces the margin factor
+        setup = replace(setup, limits=replace(setup.limits, stability_margin=None))
     model = as_modal_model(structure)
     prob = _Problem(setup, model, settings)
     tool, cut, coef, b = setup.tool, setup.cut, setup.material.cutting_coefficients, prob.b
     if method == "auto":
         method = "sdm" if cut.radial_depth_m / tool.diameter_m < settings.sdm_below_immersion else "zoa"
-    if method == "zoa":
+    if stability_limit is not None:
+        diagram, pockets, samples, sdm_limit = sampled_pockets(stability_limit, method, b.rpm, settings)
+    elif method == "zoa":
         diagram, pockets = zoa_pockets(model, setup, b.rpm, settings)
     else:
         diagram, pockets, samples, sdm_limit = sdm_pockets(model, setup, b.rpm, settings)
@@ -646,13 +656,18 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
         masks_all.append(masks)
         results.append(PocketResult((p.rpm_lo, p.rpm_hi), p.kind, _ro(seed), _ro(x),
                                     _mrr(setup, x) if ok else np.nan, status, ok))
-    if method == "sdm":
+    if method == "sdm" or stability_limit is not None:
         _refine_sdm(prob, pockets, results, samples, sdm_limit, setup, settings)
 
     def predict(x):
-        return predict_point(model, tool, replace(cut, feed_per_tooth_m=float(x[2])), coef,
-                             spindle_rpm=float(x[0]), axial_depth_m=float(x[1]), method=method,
-                             rtol=settings.sdm_rtol, n_freq=settings.n_freq)
+        point = predict_point(model, tool, replace(cut, feed_per_tooth_m=float(x[2])), coef,
+                              spindle_rpm=float(x[0]), axial_depth_m=float(x[1]),
+                              method="zoa" if stability_limit is not None else method,
+                              rtol=settings.sdm_rtol, n_freq=settings.n_freq)
+        if stability_limit is not None:  # stability re-checked against the given limit
+            lim = float(np.asarray(stability_limit(np.array([float(x[0])])))[0])
+            point = replace(point, depth_limit_m=lim, stable=bool(float(x[1]) < lim))
+        return point
 
     best, point = _verify(prob, pockets, results, predict, setup, settings)
     common = dict(method=method, stability_margin=b.margin, pockets=tuple(results), diagram=diagram,

@@ -283,3 +283,18 @@ def sdm_pockets(model, setup, rpm_range, settings: PlanSettings):
     rr, dd, breaks = _sdm_samples(diagram, sdm_limit, *rpm_range, settings.sdm_cusp_iterations)
     pockets = build_pockets(breaks, PchipInterpolator(rr, dd), settings, sampled=True)
     return diagram, pockets, [rr, dd], sdm_limit
+
+
+def sampled_pockets(limit_fn, method: str, rpm_range, settings: PlanSettings):
+    """Pockets of any limit function sampled like the SDM's (``limit_fn(rpm_array) -> depth_array``),
+    e.g. the chance-constrained depth of a learned posterior (:class:`planner.learn.predictive.
+    ChanceLimit`): the diagram, the pockets, the samples and the function, as :func:`sdm_pockets`."""
+    lo, hi = rpm_range
+    rpm = np.linspace(lo, hi, settings.n_rpm_sdm)
+    depth = np.asarray(limit_fn(rpm), dtype=float)
+    n = rpm.size
+    diagram = LobeDiagram(method=method, rpm=rpm, depth_limit_m=depth, chatter_frequency_hz=np.full(n, np.nan),
+                          kind=np.full(n, "none"), is_intersection=np.zeros(n, bool), steps=np.zeros(n, int))
+    rr, dd, breaks = _sdm_samples(diagram, limit_fn, lo, hi, settings.sdm_cusp_iterations)
+    pockets = build_pockets(breaks, PchipInterpolator(rr, dd), settings, sampled=True)
+    return diagram, pockets, [rr, dd], limit_fn

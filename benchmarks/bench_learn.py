@@ -1,0 +1,271 @@
+"""Benchmark of ``robomill learn`` (issue 12): accuracy, boundary, calibration, baselines, suggest, speed.
+
+Truth: a one-mode tool and its cutting coefficients; the prior is off by up to 1.5 prior sds in
+each of the five parameters (uniform). Test cuts: random speeds (6-24 krpm), radial immersions
+0.1/0.25/0.5/1.0 D, up or down milling, axial depths log-uniform; labelled by the converged SDM
+(40 steps per mode period, 80 per tooth period at least) with 5 % of the labels flipped. Held-out
+cuts are labelled by the same SDM, unflipped.
+
+Reports (medians over seeds):
+* held-out accuracy: the prior's nominal model (what a shop uses without learning) and the
+  posterior (P(stable) >= 0.5), per number of training cuts;
+* the posterior's 50 % boundary against the true limit over speed at the production cut
+  (0.5 D, down): median relative error and the share of speeds within 10 %;
+* reliability: held-out cuts binned by posterior P(stable), the share truly stable per bin;
+* baselines on the same cuts: logistic regression and k-nearest neighbours (k = 5) on
+  (speed, log axial depth, radial immersion, down), numpy only, and how many cuts each needs for
+  90 % held-out accuracy;
+* --suggest vs a grid of test cuts: cuts needed to find a stable cut within 5 % of the best stable
+  MRR at the production engagement;
+* speed: learning 40 cuts, predicting 1000.
+
+Run: ``PYTHONPATH=. python benchmarks/bench_learn.py [--seeds 20] [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from planner.learn.likelihood import STABLE
+from planner.learn.outcomes_io import CutTable
+from planner.learn.posterior import PriorSD
+from planner.learn.predictive import predict_cuts, probability_lobes
+from planner.learn.suggest import suggest_cuts
+from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
+from planner.learn.tables import reference_limits
+from planner.learn.update import learn
+
+RPM = (6000.0, 24000.0)
+
+
+# ----------------------------------------------------------------------------------- baselines
+def _features(c: CutTable, d):
+    return np.stack([c.spindle_rpm / 1e4, np.log(c.axial_depth_m * 1e3), c.radial_depth_m / d, c.down * 1.0], 1)
+
+
+def logistic(train: CutTable, test: CutTable, d, *, l2=1e-2) -> np.ndarray:
+    """P(stable) by L2-regularised logistic regression (Newton / IRLS)."""
+    x, xt = _features(train, d), _features(test, d)
+    mu, sd = x.mean(0), x.std(0) + 1e-12
+    x, xt = (x - mu) / sd, (xt - mu) / sd
+    x, xt = np.c_[np.ones(len(x)), x], np.c_[np.ones(len(xt)), xt]
+    y = (train.outcome == STABLE) * 1.0
+    w = np.zeros(x.shape[1])
+    for _ in range(50):
+        p = 1 / (1 + np.exp(-x @ w))
+        g = x.T @ (p - y) + l2 * w
+        h = x.T @ (x * (p * (1 - p))[:, None]) + l2 * np.eye(len(w))
+        step = np.linalg.solve(h, g)
+        w -= step
+        if np.max(np.abs(step)) < 1e-8:
+            break
+    return 1 / (1 + np.exp(-xt @ w))
+
+
+def knn(train: CutTable, test: CutTable, d, *, k=5) -> np.ndarray:
+    x, xt = _features(train, d), _features(test, d)
+    mu, sd = x.mean(0), x.std(0) + 1e-12
+    x, xt = (x - mu) / sd, (xt - mu) / sd
+    dist = np.linalg.norm(xt[:, None, :] - x[None, :, :], axis=2)
+    idx = np.argsort(dist, axis=1)[:, : min(k, len(x))]
+    return np.mean(train.outcome[idx] == STABLE, axis=1)
+
+
+def subset(c: CutTable, n: int) -> CutTable:
+    return CutTable(*(getattr(c, f)[:n] for f in ("spindle_rpm", "axial_depth_m", "radial_depth_m", "down", "outcome",
+                                                   "weight", "feed_per_tooth_m", "detected")))
+
+
+def acc(p, truth_stable):
+    return float(np.mean((p >= 0.5) == truth_stable))
+
+
+# ----------------------------------------------------------------------------------- one seed
+def run_seed(seed, sizes, base_sizes, n_held, log):
+    rng = np.random.default_rng(seed)
+    sd = PriorSD().log_sds()
+    u = rng.uniform(-1.5, 1.5, 5) * sd
+    prob = tool_problem(u_prior=u, rpm_range=RPM)
+    d = prob.setup.tool.diameter_m
+    n_max = max(max(sizes), max(base_sizes))
+    pool = random_cuts(prob, n_max, rng)
+    pool = label(pool, true_limits(prob, pool.spindle_rpm, pool.radial_depth_m, pool.down), rng, flip=0.05)
+    held = random_cuts(prob, n_held, np.random.default_rng(seed + 10_000))
+    held_lim = true_limits(prob, held.spindle_rpm, held.radial_depth_m, held.down)
+    truth = held.axial_depth_m < held_lim
+    # prior's nominal model on the held-out cuts
+    prior_lim = np.empty(held.n_cuts)
+    keys = np.stack([held.radial_depth_m, held.down * 1.0], 1)
+    for key in np.unique(keys, axis=0):
+        rows = np.all(keys == key, axis=1)
+        cut = replace(prob.setup.cut, radial_depth_m=float(key[0]), milling="down" if key[1] else "up")
+        prior_lim[rows] = reference_limits(prob.prior, prob.setup.tool, cut, prob.setup.material.cutting_coefficients,
+                                           held.spindle_rpm[rows], method="sdm")
+    out = {"seed": seed, "u_prior_in_sd": (u / sd).round(2).tolist(), "acc_prior": acc((held.axial_depth_m < prior_lim) * 1.0, truth)}
+    for n in sizes:
+        t0 = time.perf_counter()
+        res = learn(prob.setup, prob.prior, subset(pool, n), seed=seed)
+        t_learn = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        p = predict_cuts(res.posterior, prob.setup, held)
+        t_pred = time.perf_counter() - t0
+        out[f"acc_post_{n}"] = acc(p, truth)
+        out[f"time_learn_{n}"] = t_learn
+        out[f"time_predict_{n}"] = t_pred
+        out[f"cause_{n}"] = res.posterior.cause()
+        out[f"loo_{n}"] = (res.accuracy_before, res.accuracy_after)
+        out[f"warn_{n}"] = len(res.warnings)
+        if n == max(sizes):
+            out["p_held"], out["truth_held"] = p, truth
+            lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=48)
+            rr = lobes.rpm
+            tl = true_limits(prob, rr, np.full(rr.size, prob.setup.cut.radial_depth_m), np.ones(rr.size, bool))
+            err = np.abs(lobes.quantiles[0.5] / tl - 1)
+            out["boundary_median_err"] = float(np.median(err))
+            out["boundary_within_10"] = float(np.mean(err < 0.10))
+            out["post"] = res
+        log(f"  seed {seed} n={n}: prior {out['acc_prior']:.2f} post {out[f'acc_post_{n}']:.2f} "
+            f"learn {t_learn:.1f}s predict({held.n_cuts}) {t_pred:.1f}s cause {out[f'cause_{n}']}")
+    for n in base_sizes:
+        tr = subset(pool, n)
+        out[f"acc_logit_{n}"] = acc(logistic(tr, held, d), truth)
+        out[f"acc_knn_{n}"] = acc(knn(tr, held, d), truth)
+    return out, prob
+
+
+# ---------------------------------------------------------------------------- suggest vs grid
+def suggest_vs_grid(seed, max_cuts, log):
+    rng = np.random.default_rng(seed + 500)
+    sd = PriorSD().log_sds()
+    prob = tool_problem(u_prior=rng.uniform(-1.5, 1.5, 5) * sd, rpm_range=RPM)
+    ae, down = prob.setup.cut.radial_depth_m, prob.setup.cut.milling == "down"
+    fine = np.geomspace(*RPM, 160)
+    tl = true_limits(prob, fine, np.full(fine.size, ae), np.full(fine.size, down))
+    best = float(np.max(tl * fine))
+
+    def truth_stable(rpm, ap):
+        return ap < true_limits(prob, np.atleast_1d(rpm), np.full(np.size(rpm), ae), np.full(np.size(rpm), down))
+
+    # grid: k speeds x k depths (depths up to the prior's slot-limit scale x 8), k = 2..8
+    grid_need = np.nan
+    dmax = 3.0 * float(np.max(tl))
+    for k in range(2, 9):
+        r, a = np.meshgrid(np.linspace(*RPM, k), np.linspace(dmax / k, dmax, k), indexing="ij")
+        st = truth_stable(r.ravel(), a.ravel())
+        found = float(np.max((r.ravel() * a.ravel())[st], initial=0.0))
+        if found >= 0.95 * best:
+            grid_need = k * k
+            break
+    # suggest: start from 3 shallow cuts, then one suggested cut at a time
+    rpm0 = np.array([8000.0, 14000.0, 20000.0])
+    ap0 = np.full(3, 0.3 * float(np.min(tl)))
+    cuts = CutTable(rpm0, ap0, np.full(3, ae), np.full(3, down), np.where(truth_stable(rpm0, ap0), 0, 1), np.ones(3),
+                    np.full(3, np.nan), np.zeros(3, bool))
+    need = np.nan
+    for _ in range(max_cuts - 3):
+        res = learn(prob.setup, prob.prior, cuts, seed=seed, n_particles=1000)
+        lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=100)
+        s, _, _ = suggest_cuts(lobes, 1)
+        st = truth_stable(s.spindle_rpm, s.axial_depth_m)
+        cuts = CutTable(*(np.concatenate([getattr(cuts, f), v]) for f, v in (
+            ("spindle_rpm", s.spindle_rpm), ("axial_depth_m", s.axial_depth_m), ("radial_depth_m", s.radial_depth_m),
+            ("down", s.down), ("outcome", np.where(st, 0, 1)), ("weight", s.weight),
+            ("feed_per_tooth_m", s.feed_per_tooth_m), ("detected", s.detected))))
+        found = float(np.max((cuts.spindle_rpm * cuts.axial_depth_m)[cuts.outcome == 0], initial=0.0))
+        if found >= 0.95 * best:
+            need = cuts.n_cuts
+            break
+    log(f"  suggest seed {seed}: grid needs {grid_need} cuts, suggest needs {need}")
+    return grid_need, need
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--quick", action="store_true", help="3 seeds, 20 cuts, 1 suggest seed")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[15, 30])
+    ap.add_argument("--held", type=int, default=60)
+    ap.add_argument("--suggest-seeds", type=int, default=4)
+    ap.add_argument("--suggest-max-cuts", type=int, default=18)
+    ap.add_argument("--budget-s", type=float, default=np.inf,
+                    help="start no new seed after this many seconds (the summary covers the seeds done)")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.seeds, args.sizes, args.held, args.suggest_seeds = 3, [20], 30, 1
+    base_sizes = sorted(set(args.sizes) | {10, 20, 30, 60, 120})
+    log = lambda s: print(s, flush=True)  # noqa: E731
+    rows = []
+    t_all = time.perf_counter()
+    for seed in range(args.seeds):
+        if time.perf_counter() - t_all > args.budget_s:
+            log(f"budget reached: {len(rows)} seeds done")
+            break
+        r, last_prob = run_seed(seed, args.sizes, base_sizes, args.held, log)
+        rows.append(r)
+    args.seeds = len(rows)
+    med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
+    log("\n## held-out accuracy (median over %d seeds, %d held-out cuts each)" % (args.seeds, args.held))
+    log("| training cuts | prior (nominal) | posterior | logistic | kNN (k=5) |")
+    log("|---|---|---|---|---|")
+    for n in base_sizes:
+        post = f"{med(f'acc_post_{n}'):.3f}" if n in args.sizes else "-"
+        log(f"| {n} | {med('acc_prior'):.3f} | {post} | {med(f'acc_logit_{n}'):.3f} | {med(f'acc_knn_{n}'):.3f} |")
+    for n in args.sizes:
+        share = np.mean([r[f"acc_post_{n}"] >= 0.9 for r in rows])
+        log(f"posterior, {n} cuts: share of seeds >= 90 %: {share:.2f}; mean {np.mean([r[f'acc_post_{n}'] for r in rows]):.3f}")
+    for name in ("logit", "knn"):
+        need = [n for n in base_sizes if med(f"acc_{name}_{n}") >= 0.9]
+        log(f"{name}: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(base_sizes)}")
+    need = [n for n in args.sizes if med(f"acc_post_{n}") >= 0.9]
+    log(f"posterior: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(args.sizes)}")
+    log("\n## 50 % boundary vs the true (converged SDM) limit, production cut 0.5 D down")
+    log(f"median relative error {med('boundary_median_err'):.3f}; median share of speeds within 10 %: "
+        f"{med('boundary_within_10'):.2f}")
+    p = np.concatenate([r["p_held"] for r in rows])
+    t = np.concatenate([r["truth_held"] for r in rows])
+    log("\n## reliability (held-out cuts pooled over seeds)")
+    log("| P(stable) bin | cuts | mean P | share stable |")
+    log("|---|---|---|---|")
+    edges = np.array([0, 0.05, 0.2, 0.4, 0.6, 0.8, 0.95, 1.0001])
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (p >= lo) & (p < hi)
+        if sel.any():
+            log(f"| {lo:.2f}-{min(hi, 1):.2f} | {sel.sum()} | {p[sel].mean():.3f} | {t[sel].mean():.3f} |")
+    n = max(args.sizes)
+    log(f"\n## speed: learn {n} cuts median {med(f'time_learn_{n}'):.1f} s (max "
+        f"{max(r[f'time_learn_{n}'] for r in rows):.1f}); predict {args.held} held-out cuts median "
+        f"{med(f'time_predict_{n}'):.1f} s")
+    causes = [r[f"cause_{n}"] for r in rows]
+    log("causes named: " + ", ".join(f"{c}: {causes.count(c)}" for c in sorted(set(causes))))
+    # speed of --predict 1000 cuts (a grid: 2 engagements x 50 speeds x 10 depths)
+    r0, prob = rows[-1], last_prob
+    rr, aa, ee = np.meshgrid(np.linspace(*RPM, 50), np.geomspace(5e-4, 2e-2, 10), [0.1, 0.5], indexing="ij")
+    m = rr.size
+    grid = CutTable(rr.ravel(), aa.ravel(), ee.ravel() * prob.setup.tool.diameter_m, np.ones(m, bool), np.full(m, -1),
+                    np.ones(m), np.full(m, np.nan), np.zeros(m, bool))
+    t0 = time.perf_counter()
+    predict_cuts(r0["post"].posterior, prob.setup, grid)
+    log(f"predict 1000 cuts (2 engagements x 50 speeds x 10 depths): {time.perf_counter() - t0:.1f} s")
+    # 40 cuts
+    rng = np.random.default_rng(99)
+    pr = tool_problem(u_prior=rng.uniform(-1.5, 1.5, 5) * PriorSD().log_sds(), rpm_range=RPM)
+    c40 = random_cuts(pr, 40, rng)
+    c40 = label(c40, true_limits(pr, c40.spindle_rpm, c40.radial_depth_m, c40.down), rng)
+    t0 = time.perf_counter()
+    learn(pr.setup, pr.prior, c40)
+    log(f"learn 40 cuts: {time.perf_counter() - t0:.1f} s")
+    log("\n## --suggest vs a grid of test cuts (cuts to a stable cut within 5 % of the best stable MRR)")
+    log("| seed | grid | suggest |")
+    log("|---|---|---|")
+    for s in range(args.suggest_seeds):
+        g, q = suggest_vs_grid(s, args.suggest_max_cuts, log)
+        log(f"| {s} | {g} | {q} |")
+    log(f"\ntotal {time.perf_counter() - t_all:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,183 @@
+"""``robomill learn``: the posterior of the tool-tip modes and cutting coefficients from test cuts.
+
+Registered through :data:`planner.cli.COMMAND_GROUPS`. Parses, validates every input before any
+computation (bad input: exit 2, one line, nothing written), calls :func:`planner.learn.update.learn`,
+prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from planner.cli_common import EXIT_OK, UsageError, add_json, emit, save_figure
+
+__all__ = ["add_parsers", "parse_prior_sd", "chance_constraint", "posterior_lobes"]
+
+_GROUPS = ("frequency", "stiffness", "damping", "coefficients")
+
+
+def parse_prior_sd(items):
+    """``['frequency=0.1', ...]`` -> :class:`PriorSD` (cli.md defaults for groups not given)."""
+    from .posterior import PriorSD
+
+    values = {}
+    for item in items or []:
+        name, sep, text = item.partition("=")
+        if not sep or name not in _GROUPS:
+            raise UsageError("--prior-sd", f"GROUP=VALUE with GROUP one of {', '.join(_GROUPS)}", repr(item))
+        try:
+            v = float(text)
+        except ValueError:
+            raise UsageError("--prior-sd", "a number after '='", repr(item)) from None
+        if not (0 <= v <= 3):
+            raise UsageError("--prior-sd", "a relative sd in [0, 3]", repr(item))
+        values[name] = v
+    return PriorSD(**values)
+
+
+def add_parsers(sub) -> None:
+    p = sub.add_parser("learn", help="Bayesian update of the stability model from test-cut outcomes")
+    p.add_argument("setup", help="robomill-setup/1 file (tool, cutting frame, prior cutting coefficients)")
+    p.add_argument("--model", required=True, help="prior robomill-modal/1 model")
+    p.add_argument("--cuts", required=True, help="cut-outcomes CSV (formats.md)")
+    p.add_argument("--predict", default=None, help="cuts CSV whose probability of stability to report")
+    p.add_argument("--suggest", type=int, default=None, metavar="N", help="the N test cuts that would teach most")
+    p.add_argument("-o", "--output", default=None, help="posterior model to write (MAP + x_posterior samples)")
+    p.add_argument("--plot", default=None, metavar="FIG", help="lobes with 5/50/95 %% probability contours")
+    p.add_argument("--prior-sd", nargs="+", default=None, metavar="GROUP=SD",
+                   help="relative prior sds: frequency=0.10 stiffness=0.30 damping=0.50 coefficients=0.25")
+    p.add_argument("--method", choices=["sdm", "auto", "zoa"], default="sdm",
+                   help="stability method per cut (auto: SDM below ae/D = 0.2, ZOA above)")
+    p.add_argument("--samples", type=int, default=2000, help="posterior particles")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rpm", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
+                   help="speed range of --plot/--suggest (default: the setup's limits, else the cuts' range)")
+    p.add_argument("--flute-length", type=float, default=None, help="flute length, m: deeper cuts are rejected")
+    add_json(p)
+    p.set_defaults(handler=_cmd_learn)
+
+
+def _speed_range(args, setup, cuts):
+    if args.rpm is not None:
+        lo, hi = args.rpm
+        if not 0 < lo < hi:
+            raise UsageError("--rpm", "0 < MIN < MAX", f"{lo} {hi}")
+        return float(lo), float(hi)
+    if setup.limits.spindle_rpm is not None:
+        return tuple(float(x) for x in setup.limits.spindle_rpm)
+    lo, hi = float(cuts.spindle_rpm.min()), float(cuts.spindle_rpm.max())
+    return 0.8 * lo, 1.2 * hi
+
+
+def _cmd_learn(args) -> int:
+    from oma.errors import InputError
+    from oma.modal_io import read_modal_model
+    from stability.setup_io import read_setup
+
+    from .outcomes_io import read_cuts, write_cuts
+    from .posterior_io import write_posterior_model
+    from .predictive import predict_cuts, probability_lobes
+    from .suggest import suggest_cuts
+    from .update import learn
+
+    # ---- every input read and checked before anything is computed or written
+    setup = read_setup(args.setup)
+    if setup.material.cutting_coefficients is None:  # read_setup requires them; kept explicit
+        raise InputError(args.setup, "material.cutting_coefficients", "the prior cutting coefficients", "none")
+    prior = read_modal_model(args.model)
+    prior_sd = parse_prior_sd(args.prior_sd)
+    if args.samples < 100:
+        raise UsageError("--samples", "at least 100", str(args.samples))
+    if args.suggest is not None and not 1 <= args.suggest <= 100:
+        raise UsageError("--suggest", "N in 1..100", str(args.suggest))
+    if args.flute_length is not None and not args.flute_length > 0:
+        raise UsageError("--flute-length", "a positive length in m", str(args.flute_length))
+    cuts = read_cuts(args.cuts, tool=setup.tool, flute_length_m=args.flute_length)
+    to_predict = None
+    if args.predict:
+        to_predict = read_cuts(args.predict, tool=setup.tool, outcomes_required=False,
+                               flute_length_m=args.flute_length)
+    rpm_range = _speed_range(args, setup, cuts)
+
+    result = learn(setup, prior, cuts, prior_sd=prior_sd, n_particles=args.samples, seed=args.seed,
+                   method=args.method)
+    post = result.posterior
+    payload = result.to_dict()
+    payload["predictions"] = None
+    payload["suggested"] = None
+    if to_predict is not None:
+        p = predict_cuts(post, setup, to_predict, method=args.method)
+        payload["predictions"] = [{"index": i, "probability_stable": float(x)} for i, x in enumerate(p)]
+    lobes = None
+    if args.suggest or args.plot:
+        lobes = probability_lobes(post, setup, rpm_range, method=args.method)
+    if args.suggest:
+        sugg, gain, incumbent = suggest_cuts(lobes, args.suggest)
+        fz = setup.cut.feed_per_tooth_m
+        scale = setup.cut.radial_depth_m * fz * setup.tool.teeth / 60.0
+        payload["suggested"] = [dict(sugg.row(i), feed_per_tooth_m=fz, expected_improvement_mrr_m3_s=float(g * scale))
+                                for i, g in enumerate(gain)]
+        payload["best_stable_mrr_m3_s"] = incumbent * scale
+    payload["posterior_samples"] = int(post.samples.shape[0])
+    # ---- outputs last, each atomically
+    if args.plot:
+        fig, _ = lobes.plot(cuts=cuts)
+        save_figure(fig, args.plot)
+    if args.output:
+        payload["posterior"] = str(write_posterior_model(post, args.output))
+    emit(args, payload, lambda d: _human(d, result))
+    return EXIT_OK
+
+
+def _human(d, result) -> str:
+    lines = [f"learned from the test cuts: cross-validated accuracy {d['accuracy_before']:.2f} (prior) -> "
+             f"{d['accuracy_after']:.2f} (posterior); moved most: {d['cause']}"]
+    for name, s in d["parameters"].items():
+        if not s["fixed"]:
+            lines.append(f"  {name:24s} {s['prior']:.4g} +- {s['prior_sd']:.2g}  ->  {s['mean']:.4g} +- {s['sd']:.2g}")
+    for w in d["warnings"]:
+        lines.append(f"warning: {w}")
+    if d.get("predictions"):
+        lines.append("P(stable) of the cuts to predict: " + ", ".join(f"{x['probability_stable']:.2f}"
+                                                                      for x in d["predictions"][:20]))
+    if d.get("suggested"):
+        lines.append("next test cuts (rpm, axial depth mm): " + "; ".join(
+            f"{s['spindle_rpm']:.0f}, {1e3 * s['axial_depth_m']:.2f}" for s in d["suggested"]))
+    if d.get("posterior"):
+        lines.append(f"posterior model: {d['posterior']}")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------- used by `plan` and `lobes` (planner.cli)
+def chance_constraint(model_path, setup, *, probability: float = 0.95):
+    """For ``plan``: ``(stability_limit, learned)`` when the model carries ``x_posterior`` (the
+    depth stable with ``probability``, and what was learned, for the report), else ``(None, None)``."""
+    from .posterior_io import read_posterior
+    from .predictive import ChanceLimit
+
+    if not 0 < probability < 1:
+        raise UsageError("--probability", "a probability in (0, 1)", repr(probability))
+    post = read_posterior(model_path)
+    if post is None or setup.limits.spindle_rpm is None:
+        return None, None
+    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=probability)
+    learned = {"probability": float(probability), "samples": int(post.samples.shape[0]),
+               "method": post.method, "cause": post.cause(), "parameters": post.parameters(),
+               "note": f"stability: P(stable) >= {probability:g} under the posterior learned from test cuts "
+                       "(the chance constraint replaces the stability margin)"}
+    return limit, learned
+
+
+def posterior_lobes(model_path, setup, rpm_range):
+    """For ``lobes``: the probability lobes when the model carries ``x_posterior`` (else ``None``)."""
+    from pathlib import Path
+
+    from .posterior_io import read_posterior
+    from .predictive import probability_lobes
+
+    if len(model_path) != 1 or Path(model_path[0]).suffix.lower() not in (".yaml", ".yml"):
+        return None
+    post = read_posterior(model_path[0])
+    return None if post is None else probability_lobes(post, setup, rpm_range)

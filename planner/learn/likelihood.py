@@ -1,0 +1,74 @@
+"""The likelihood of test-cut outcomes given a predicted limit depth.
+
+For a cut of depth ``a`` and a parameter set whose limit at the cut's speed and engagement is
+``b``, the chance that the cut really chatters is a soft step in the log-depth ratio,
+
+    p_chatter = Phi_logistic(log(a / b) / s),       s = ``boundary_scale`` (default 0.03),
+
+the few per cent by which a limit computed from nominal parameters is uncertain even when the
+parameters are right (runout, feed variation, the operator's threshold). A mark is wrong with
+probability ``mislabel`` (epsilon, default 0.05), whatever the cut did:
+
+    P(mark 'chatter') = eps + (1 - 2 eps) p_chatter,    P(mark 'stable') = 1 - P(mark 'chatter').
+
+An ``uncertain`` mark says the cut was near the boundary (light marks, an operator not sure): its
+likelihood is ``eps + (1 - 2 eps) exp(-(log(a/b))^2 / (2 s_u^2))`` with ``s_u`` =
+``uncertain_scale`` (0.15: within about 15 % of the limit), and it enters tempered, raised to the
+power ``uncertain_weight`` (0.3), so it is weak evidence, never ignored. A label detected from a
+record enters raised to its detection confidence (0..1). This is the Bayesian-stability
+likelihood of Karandikar et al. (J. Manuf. Sci. Eng. 136, 2014) with a label-noise term, as
+Cornelius et al. (Procedia Manuf. 53, 2021) use for reverse identification.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import expit, log_expit
+
+__all__ = ["Likelihood", "STABLE", "CHATTER", "UNCERTAIN"]
+
+STABLE, CHATTER, UNCERTAIN = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Likelihood:
+    """Settings of the outcome likelihood (see the module notes)."""
+
+    mislabel: float = 0.05
+    boundary_scale: float = 0.03
+    uncertain_scale: float = 0.15
+    uncertain_weight: float = 0.3
+
+    def __post_init__(self):
+        if not 0 <= self.mislabel < 0.5:
+            raise ValueError(f"mislabel must be in [0, 0.5), found {self.mislabel}")
+        if not (self.boundary_scale > 0 and self.uncertain_scale > 0):
+            raise ValueError("boundary_scale and uncertain_scale must be > 0")
+
+    def p_chatter(self, log_ratio) -> np.ndarray:
+        """Chance the cut chatters, ``log_ratio = log(a / b)``."""
+        return expit(np.asarray(log_ratio) / self.boundary_scale)
+
+    def log_terms(self, log_ratio, outcome, weight) -> np.ndarray:
+        """Weighted log-likelihood of each cut, shape of ``log_ratio`` (``(..., n_cuts)``).
+
+        ``outcome`` (n_cuts,) holds STABLE, CHATTER or UNCERTAIN; ``weight`` (n_cuts,) the label
+        weights (the tempering of uncertain marks is applied here, on top).
+        """
+        x = np.asarray(log_ratio, dtype=float) / self.boundary_scale
+        eps = self.mislabel
+        # log(eps + (1 - 2 eps) sigma(x)) and log(eps + (1 - 2 eps) sigma(-x)), stably
+        log_ch = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(x))
+        log_st = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(-x))
+        z = np.asarray(log_ratio, dtype=float) / self.uncertain_scale
+        log_un = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) - 0.5 * z * z)
+        outcome = np.asarray(outcome)
+        w = np.asarray(weight, dtype=float) * np.where(outcome == UNCERTAIN, self.uncertain_weight, 1.0)
+        terms = np.where(outcome == CHATTER, log_ch, np.where(outcome == STABLE, log_st, log_un))
+        return w * terms
+
+    def to_dict(self) -> dict:
+        return {"mislabel": self.mislabel, "boundary_scale": self.boundary_scale,
+                "uncertain_scale": self.uncertain_scale, "uncertain_weight": self.uncertain_weight}

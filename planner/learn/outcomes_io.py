@@ -1,0 +1,194 @@
+"""Read and write cut-outcome tables (formats.md "Cut outcomes").
+
+One row per cut: ``spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome`` and optionally
+``feed_per_tooth_m``, ``record`` and ``x_...`` columns. ``outcome`` is ``stable``, ``chatter`` or
+``uncertain``, or empty where ``record`` names the cut's record: the outcome is then detected with
+the chatter detection of ``robomill diagnose`` (:func:`planner.diagnosis.chatter.detect_chatter`)
+and its confidence becomes the label's weight.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from oma.errors import InputError
+from oma.io import atomic_write
+
+from .likelihood import CHATTER, STABLE, UNCERTAIN
+
+__all__ = ["CutTable", "read_cuts", "write_cuts", "CutsError", "OUTCOMES", "MIN_CUTS"]
+
+OUTCOMES = {"stable": STABLE, "chatter": CHATTER, "uncertain": UNCERTAIN}
+WORDS = {v: k for k, v in OUTCOMES.items()}
+REQUIRED = ("spindle_rpm", "axial_depth_m", "radial_depth_m", "milling")
+MIN_CUTS = 3
+
+
+class CutsError(InputError):
+    """A cut-outcomes table that cannot be read."""
+
+
+@dataclass(frozen=True)
+class CutTable:
+    """Test cuts, SI. ``outcome`` holds STABLE/CHATTER/UNCERTAIN (-1: none, for cuts to predict);
+    ``weight`` the label weight (1 for a mark, the detection confidence for a detected one)."""
+
+    spindle_rpm: np.ndarray
+    axial_depth_m: np.ndarray
+    radial_depth_m: np.ndarray
+    down: np.ndarray
+    outcome: np.ndarray
+    weight: np.ndarray
+    feed_per_tooth_m: np.ndarray
+    detected: np.ndarray
+
+    @property
+    def n_cuts(self) -> int:
+        return int(self.spindle_rpm.size)
+
+    def to_dict(self) -> dict:
+        return {"rows": [self.row(i) for i in range(self.n_cuts)]}
+
+    def row(self, i: int) -> dict:
+        out = {"spindle_rpm": float(self.spindle_rpm[i]), "axial_depth_m": float(self.axial_depth_m[i]),
+               "radial_depth_m": float(self.radial_depth_m[i]), "milling": "down" if self.down[i] else "up",
+               "outcome": WORDS.get(int(self.outcome[i]), "")}
+        if np.isfinite(self.feed_per_tooth_m[i]):
+            out["feed_per_tooth_m"] = float(self.feed_per_tooth_m[i])
+        return out
+
+
+def _number(path, where, text, *, positive=True):
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise CutsError(path, where, "a number", repr(text)) from None
+    if not math.isfinite(v) or (positive and v <= 0):
+        raise CutsError(path, where, "a finite number > 0", repr(text))
+    return v
+
+
+def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: float | None = None,
+              detect=None) -> CutTable:
+    """Read a cut-outcomes CSV.
+
+    Parameters
+    ----------
+    path : str or path-like
+    tool : oma.cutting.Tool
+        The setup's tool: radial depth must be in ``(0, D]``.
+    outcomes_required : bool
+        ``False`` for a table of cuts to predict (outcome column optional, ignored).
+    flute_length_m : float, optional
+        Axial depths above it are rejected (when known).
+    detect : callable, optional
+        ``detect(record_path, row) -> (outcome, confidence)`` for rows with an empty outcome and a
+        ``record``; default :func:`detect_outcome`.
+
+    Raises
+    ------
+    CutsError
+        Missing file or columns, a non-numeric or non-positive number, a milling other than
+        up/down, an outcome other than the three words, a depth outside the tool, fewer than
+        ``MIN_CUTS`` cuts (when outcomes are required).
+    """
+    p = Path(os.fspath(path))
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise CutsError(p, "file", "a readable cut-outcomes CSV", type(exc).__name__) from None
+    rows = list(csv.reader(text.splitlines()))
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise CutsError(p, "header", "spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome", "an empty file")
+    header = [h.strip() for h in rows[0]]
+    need = REQUIRED + (("outcome",) if outcomes_required else ())
+    for name in need:
+        if name not in header:
+            raise CutsError(p, "header", f"a column {name!r}", ",".join(header))
+    known = set(REQUIRED) | {"outcome", "feed_per_tooth_m", "record"}
+    for name in header:
+        if name not in known and not name.startswith("x_"):
+            raise CutsError(p, "header", "known columns or x_ extensions", f"the unknown column {name!r}")
+    col = {h: i for i, h in enumerate(header)}
+    data = rows[1:]
+    if outcomes_required and len(data) < MIN_CUTS:
+        raise CutsError(p, "rows", f"at least {MIN_CUTS} cuts", f"{len(data)}")
+    if not data:
+        raise CutsError(p, "rows", "at least 1 cut", "0")
+    cols = {k: [] for k in ("rpm", "ap", "ae", "down", "out", "w", "fz", "det")}
+    for n, r in enumerate(data, start=2):
+        if len(r) != len(header):
+            raise CutsError(p, f"line {n}", f"{len(header)} fields", f"{len(r)}")
+        get = lambda name: r[col[name]].strip() if name in col else ""  # noqa: E731
+        rpm = _number(p, f"line {n}: spindle_rpm", get("spindle_rpm"))
+        ap = _number(p, f"line {n}: axial_depth_m", get("axial_depth_m"))
+        ae = _number(p, f"line {n}: radial_depth_m", get("radial_depth_m"))
+        if ae > tool.diameter_m * (1 + 1e-9):
+            raise CutsError(p, f"line {n}: radial_depth_m", f"at most the tool diameter {tool.diameter_m:g} m",
+                            f"{ae:g}")
+        if flute_length_m is not None and ap > flute_length_m * (1 + 1e-9):
+            raise CutsError(p, f"line {n}: axial_depth_m", f"at most the flute length {flute_length_m:g} m",
+                            f"{ap:g}")
+        milling = get("milling").lower()
+        if milling not in ("up", "down"):
+            raise CutsError(p, f"line {n}: milling", "'up' or 'down'", repr(get("milling")))
+        fz = _number(p, f"line {n}: feed_per_tooth_m", get("feed_per_tooth_m")) if get("feed_per_tooth_m") \
+            else np.nan
+        word = get("outcome").lower()
+        weight, detected = 1.0, False
+        if not outcomes_required:
+            code = OUTCOMES.get(word, -1)
+        elif word in OUTCOMES:
+            code = OUTCOMES[word]
+        elif word == "" and get("record"):
+            rec = Path(get("record"))
+            rec = rec if rec.is_absolute() else p.parent / rec
+            code, weight = (detect or detect_outcome)(rec, {"spindle_rpm": rpm})
+            detected = True
+        else:
+            raise CutsError(p, f"line {n}: outcome", "stable, chatter or uncertain (or empty with a record)",
+                            repr(get("outcome")))
+        for k, v in zip(("rpm", "ap", "ae", "down", "out", "w", "fz", "det"),
+                        (rpm, ap, ae, milling == "down", code, weight, fz, detected)):
+            cols[k].append(v)
+    arr = lambda k, dt=float: np.array(cols[k], dtype=dt)  # noqa: E731
+    return CutTable(arr("rpm"), arr("ap"), arr("ae"), arr("down", bool), arr("out", int), arr("w"), arr("fz"),
+                    arr("det", bool))
+
+
+def detect_outcome(record_path, row) -> tuple[int, float]:
+    """Outcome and confidence of a cut from its record, by ``diagnose``'s chatter detection.
+
+    The confidence grows with how far the decisive statistic is from its threshold: for a line
+    found, ``log10(prominence / min_prominence)`` (one decade over the threshold: sure); for
+    none, how far the strongest line stays below it; clipped to ``[0.1, 1]``.
+    """
+    from oma.record_io import read_record
+    from planner.diagnosis.chatter import detect_chatter
+
+    rec = read_record(record_path)
+    rpm = rec.cut.spindle_rpm if rec.cut.spindle_rpm else row["spindle_rpm"]
+    res = detect_chatter(rec.data, rec.sample_rate_hz, float(rpm) / 60.0, rec.tool.teeth)
+    prom = res.prominence if np.isfinite(res.prominence) and res.prominence > 0 else 1.0
+    conf = float(np.clip(abs(np.log10(prom / 10.0)), 0.1, 1.0))
+    return (CHATTER if res.chatter else STABLE), conf
+
+
+def write_cuts(table: CutTable, path) -> Path:
+    """Write a cut table as CSV (atomically); the outcome column is left empty where unknown."""
+    target = Path(os.fspath(path))
+    lines = ["spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome"]
+    for i in range(table.n_cuts):
+        r = table.row(i)
+        lines.append(f"{r['spindle_rpm']!r},{r['axial_depth_m']!r},{r['radial_depth_m']!r},{r['milling']},"
+                     f"{r['outcome']}")
+    with atomic_write(target) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return target

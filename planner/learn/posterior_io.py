@@ -1,0 +1,120 @@
+"""A posterior written beside its MAP model: ``robomill-modal/1`` with ``x_posterior`` (cli.md).
+
+The file is an ordinary ``robomill-modal/1`` model (the maximum a posteriori one), so every reader
+of modal models reads it (they ignore ``x_`` keys). Beside it::
+
+    x_posterior:
+      format: robomill-posterior/1
+      parameters: [frequency, stiffness, damping, Ktc, Krc]
+      reference:                     # the prior the samples multiply
+        natural_frequency_hz: [...]
+        stiffness_N_m: [...]
+        damping_ratio: [...]
+        Ktc_N_m2: 7.0e8
+        Krc_N_m2: 2.1e8
+      prior_log_sd: [...]            # 0: a group held fixed
+      likelihood: {mislabel: 0.05, boundary_scale: 0.03, ...}
+      method: sdm                    # how the limits were computed (sdm, zoa, auto)
+      map_coefficients: {Ktc_N_m2: ..., Krc_N_m2: ...}
+      samples: [[u_f, u_k, u_zeta, u_Ktc, u_Krc], ...]   # log-multipliers, equally weighted,
+                                                          # the MAP sample first
+
+:func:`read_posterior` gives the samples back (``None`` for a model without them).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from oma._fields import dump_yaml, load_yaml
+from oma.cutting import CuttingCoefficients
+from oma.errors import ModelError
+from oma.io import atomic_write
+from oma.modal_io import modal_model_to_dict, read_modal_model
+
+from .likelihood import Likelihood
+from .posterior import PARAMETERS, Posterior
+
+__all__ = ["write_posterior_model", "read_posterior", "POSTERIOR_FORMAT"]
+
+POSTERIOR_FORMAT = "robomill-posterior/1"
+
+
+def posterior_to_dict(posterior: Posterior, *, max_samples: int = 500) -> dict:
+    """The ``robomill-modal/1`` mapping of the MAP model with ``x_posterior`` beside it."""
+    post = posterior.thinned(max_samples)
+    model, coef = posterior.map_model()
+    ref = posterior.reference
+    doc = modal_model_to_dict(model)
+    doc["x_posterior"] = {
+        "format": POSTERIOR_FORMAT, "parameters": list(PARAMETERS),
+        "reference": {"natural_frequency_hz": ref.natural_frequency_hz, "stiffness_N_m": ref.stiffness_N_m,
+                      "damping_ratio": ref.damping_ratio, "Ktc_N_m2": posterior.coefficients.Ktc_N_m2,
+                      "Krc_N_m2": posterior.coefficients.Krc_N_m2},
+        "prior_log_sd": posterior.prior_log_sd, "likelihood": posterior.likelihood.to_dict(),
+        "method": posterior.method,
+        "map_coefficients": {"Ktc_N_m2": coef.Ktc_N_m2, "Krc_N_m2": coef.Krc_N_m2},
+        "samples": post.samples,
+    }
+    return doc
+
+
+def write_posterior_model(posterior: Posterior, path, *, max_samples: int = 500) -> Path:
+    """Write the MAP model with the posterior samples (atomically)."""
+    target = Path(os.fspath(path))
+    text = dump_yaml(posterior_to_dict(posterior, max_samples=max_samples))
+    with atomic_write(target) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return target
+
+
+def _array(node, key, path, shape_tail=None):
+    try:
+        a = np.asarray(node[key], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        raise ModelError(path, f"x_posterior.{key}", "a list of numbers", repr(node.get(key))[:60]) from None
+    if not np.all(np.isfinite(a)) or (shape_tail is not None and (a.ndim != 2 or a.shape[1] != shape_tail)):
+        raise ModelError(path, f"x_posterior.{key}", "finite numbers of the right shape", f"shape {a.shape}")
+    return a
+
+
+def read_posterior(path) -> Posterior | None:
+    """The posterior of a model written by ``learn -o`` (``None`` when it has no ``x_posterior``).
+
+    Raises
+    ------
+    ModelError
+        The model is invalid, or ``x_posterior`` is malformed.
+    """
+    model = read_modal_model(path)
+    node = load_yaml(path, error=ModelError).mapping.get("x_posterior")
+    if node is None:
+        return None
+    if not isinstance(node, Mapping) or node.get("format") != POSTERIOR_FORMAT:
+        raise ModelError(path, "x_posterior.format", POSTERIOR_FORMAT, repr(getattr(node, "get", lambda k: node)("format")))
+    ref = node.get("reference")
+    if not isinstance(ref, Mapping):
+        raise ModelError(path, "x_posterior.reference", "a mapping", repr(ref)[:60])
+    fn, k, z = (_array(ref, key, path) for key in ("natural_frequency_hz", "stiffness_N_m", "damping_ratio"))
+    if not (fn.shape == k.shape == z.shape == (model.n_modes,)):
+        raise ModelError(path, "x_posterior.reference", f"{model.n_modes} values per parameter", f"{fn.shape}")
+    reference = replace(model, natural_frequency_hz=fn, stiffness_N_m=k, damping_ratio=z)
+    coef = CuttingCoefficients(float(_array(ref, "Ktc_N_m2", path)), float(_array(ref, "Krc_N_m2", path)))
+    samples = _array(node, "samples", path, shape_tail=len(PARAMETERS))
+    sd = _array(node, "prior_log_sd", path)
+    lk = node.get("likelihood") or {}
+    likelihood = Likelihood(**{k_: float(v) for k_, v in lk.items() if k_ in Likelihood.__dataclass_fields__})
+    if samples.shape[0] == 0 or sd.shape != (len(PARAMETERS),):
+        raise ModelError(path, "x_posterior.samples", "at least one sample of 5 log-multipliers", f"{samples.shape}")
+    method = node.get("method", "sdm")
+    if method not in ("sdm", "zoa", "auto"):
+        raise ModelError(path, "x_posterior.method", "sdm, zoa or auto", repr(method))
+    mark = np.full(samples.shape[0], -1.0)
+    mark[0] = 0.0  # the writer puts the MAP sample first
+    return Posterior(reference=reference, coefficients=coef, prior_log_sd=sd, samples=samples,
+                     log_posterior=mark, likelihood=likelihood, method=method)

@@ -1,0 +1,128 @@
+"""What a posterior predicts: P(stable) of cuts, lobes with probability contours, the chance-
+constrained limit depth used by ``plan``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from oma._arrays import readonly
+
+from .outcomes_io import CutTable
+from .posterior import Posterior
+from .tables import Grid, LimitTable, build_table
+
+__all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "ChanceLimit"]
+
+
+def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
+    """Table nodes covering the posterior samples (2 sds beyond the extremes; at most 3 damping
+    and 2 ratio nodes: the posterior is narrower than the prior these were sized for)."""
+    u = posterior.samples
+    sd = posterior.prior_log_sd
+    bounds = Grid.around(float(sd[0]), float(sd[2]), float(np.hypot(sd[3], sd[4])), span=4.0)
+    return Grid.covering(u[:, 0], u[:, 2], u[:, 4] - u[:, 3], bounds=bounds, step=step, max_zeta=3, max_ratio=2)
+
+
+def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: str | None,
+           grid: Grid | None) -> LimitTable:
+    return build_table(posterior.reference, setup.tool, setup.cut, posterior.coefficients, rpm, radial_depth_m,
+                       down, grid or predictive_grid(posterior), method=method or posterior.method)
+
+
+def predict_cuts(posterior: Posterior, setup, cuts: CutTable, *, method: str | None = None,
+                 grid: Grid | None = None) -> np.ndarray:
+    """Posterior probability that each cut is stable, shape (n_cuts,)."""
+    table = _table(posterior, setup, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, method=method, grid=grid)
+    return posterior.probability_stable(table, cuts.axial_depth_m)
+
+
+@dataclass(frozen=True)
+class ProbabilityLobes:
+    """The posterior's limit depth over speed at one engagement.
+
+    ``quantiles`` maps a probability of stability ``p`` to the depth (m, per speed) below which a
+    cut is stable with probability ``p`` (the ``1 - p`` quantile of the limit over the samples);
+    ``limits`` holds every sample's limit (n_samples, n_rpm).
+    """
+
+    rpm: np.ndarray
+    limits: np.ndarray
+    levels: tuple[float, ...]
+    quantiles: dict
+    radial_depth_m: float
+    milling: str
+
+    def probability_stable(self, axial_depth_m) -> np.ndarray:
+        """P(stable) at every speed for each depth: shape (n_depths, n_rpm)."""
+        a = np.atleast_1d(np.asarray(axial_depth_m, dtype=float))
+        return np.mean(self.limits[None, :, :] > a[:, None, None], axis=1)
+
+    def to_dict(self) -> dict:
+        return {"rpm": self.rpm.tolist(), "radial_depth_m": self.radial_depth_m, "milling": self.milling,
+                "depth_at_probability_m": {f"{p:g}": self.quantiles[p].tolist() for p in self.levels}}
+
+    def plot(self, ax=None, *, cuts: CutTable | None = None):
+        from .plots import plot_probability_lobes
+
+        return plot_probability_lobes(self, ax=ax, cuts=cuts)
+
+
+def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 150, method: str | None = None,
+                      levels=(0.05, 0.5, 0.95), radial_depth_m: float | None = None, milling: str | None = None,
+                      max_samples: int = 400, grid: Grid | None = None) -> ProbabilityLobes:
+    """Lobes with probability contours at the setup's engagement (or the one given)."""
+    ae = float(setup.cut.radial_depth_m if radial_depth_m is None else radial_depth_m)
+    mill = setup.cut.milling if milling is None else milling
+    rpm = np.geomspace(float(rpm_range[0]), float(rpm_range[1]), int(n_rpm))
+    post = posterior.thinned(max_samples)
+    table = _table(post, setup, rpm, np.full(rpm.size, ae), np.full(rpm.size, mill == "down"), method=method,
+                   grid=grid)
+    lim = np.exp(post.log_limits(table))
+    quant = {float(p): readonly(np.quantile(lim, 1.0 - p, axis=0)) for p in levels}
+    return ProbabilityLobes(rpm=readonly(rpm), limits=readonly(lim), levels=tuple(float(p) for p in levels),
+                            quantiles=quant, radial_depth_m=ae, milling=mill)
+
+
+class ChanceLimit:
+    """The depth (m) below which the cut of ``setup`` is stable with ``probability``, at any speed
+    in ``rpm_range``: the ``1 - probability`` quantile of the posterior's limit (the chance
+    constraint of ``plan``). The limit table is built once over the range; each call interpolates.
+
+    Parameters
+    ----------
+    posterior : Posterior
+    setup : stability.setup.Setup
+        Its cut (engagement) is the one planned.
+    rpm_range : (float, float)
+    probability : float
+        In (0, 1), e.g. 0.95.
+    """
+
+    def __init__(self, posterior: Posterior, setup, rpm_range, *, probability: float = 0.95,
+                 method: str | None = None, max_samples: int = 400):
+        if not 0 < probability < 1:
+            raise ValueError(f"probability must be in (0, 1), found {probability}")
+        self.probability = float(probability)
+        self.rpm_range = (float(min(rpm_range)), float(max(rpm_range)))
+        self.posterior = posterior.thinned(max_samples)
+        # grid speeds closer than the lattice step, so the lattice covers the whole range
+        step = predictive_grid(self.posterior).log_speed_step
+        n_rpm = int(np.ceil(np.log(self.rpm_range[1] / self.rpm_range[0]) / step)) + 2
+        rpm = np.geomspace(*self.rpm_range, n_rpm)
+        self._table = _table(self.posterior, setup, rpm, np.full(rpm.size, setup.cut.radial_depth_m),
+                             np.full(rpm.size, setup.cut.milling == "down"), method=method, grid=None)
+
+    def samples(self, rpm) -> np.ndarray:
+        """Every sample's limit at the speeds, (n_samples, n_rpm), m."""
+        rpm = np.clip(np.atleast_1d(np.asarray(rpm, dtype=float)), *self.rpm_range)
+        table = replace(self._table, rpm=rpm, group=np.zeros(rpm.size, dtype=int))
+        return np.exp(self.posterior.log_limits(table))
+
+    def __call__(self, rpm) -> np.ndarray:
+        return np.quantile(self.samples(rpm), 1.0 - self.probability, axis=0)
+
+
+def with_engagement(setup, radial_depth_m: float, milling: str):
+    return replace(setup, cut=replace(setup.cut, radial_depth_m=radial_depth_m, milling=milling))

@@ -1,0 +1,86 @@
+"""Synthetic test-cut problems with a known truth (tests and ``benchmarks/bench_learn.py``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from oma.cutting import Cut, CuttingCoefficients, Material, Tool
+from oma.modal import ModalModel
+from stability.setup import Limits, Setup
+
+from .likelihood import CHATTER, STABLE
+from .outcomes_io import CutTable
+from .tables import method_for, reference_limits
+
+__all__ = ["Problem", "tool_problem", "true_limits", "random_cuts", "label"]
+
+
+@dataclass(frozen=True)
+class Problem:
+    setup: Setup
+    truth: ModalModel
+    truth_coefficients: CuttingCoefficients
+    prior: ModalModel  # the prior's model; its coefficients are in setup.material
+
+
+def tool_problem(*, u_prior=(0.0, 0.0, 0.0, 0.0, 0.0), fn_hz=900.0, zeta=0.03, stiffness_N_m=1.5e7,
+                 ktc=7.0e8, krc=2.1e8, rpm_range=(6000.0, 24000.0)) -> Problem:
+    """A one-mode tool (mode along the cut normal and 45 deg, 2 flutes, 12.7 mm): the truth, and a
+    prior whose five log-multipliers are ``-u_prior`` away from it (the prior is off by ``u``)."""
+    tool = Tool(teeth=2, diameter_m=0.0127, helix_rad=0.0)
+    truth = ModalModel([fn_hz], [zeta], [stiffness_N_m], [[0.6, 0.8, 0.0]])
+    coef = CuttingCoefficients(ktc, krc)
+    u = np.asarray(u_prior, dtype=float)
+    prior = replace(truth, natural_frequency_hz=truth.natural_frequency_hz * np.exp(u[0]),
+                    stiffness_N_m=truth.stiffness_N_m * np.exp(u[1]),
+                    damping_ratio=truth.damping_ratio * np.exp(u[2]))
+    prior_coef = CuttingCoefficients(ktc * np.exp(u[3]), krc * np.exp(u[4]))
+    cut = Cut(feed_per_tooth_m=1e-4, radial_depth_m=0.5 * tool.diameter_m, milling="down",
+              feed_direction=[1, 0, 0], normal_direction=[0, 1, 0])
+    setup = Setup(tool=tool, cut=cut, material=Material("synthetic", prior_coef),
+                  limits=Limits(spindle_rpm=tuple(rpm_range)))
+    return Problem(setup=setup, truth=truth, truth_coefficients=coef, prior=prior)
+
+
+def true_limits(problem: Problem, rpm, radial_depth_m, down, *, converged: bool = True) -> np.ndarray:
+    """Limit depth of the truth at each cut: SDM (finer steps when ``converged``) at every
+    immersion, the labelling rule of the benchmark."""
+    rpm, ae, down = (np.atleast_1d(np.asarray(x)) for x in (rpm, radial_depth_m, down))
+    out = np.empty(rpm.size)
+    keys = np.stack([ae.astype(float), down.astype(float)], axis=1)
+    uniq, grp = np.unique(keys, axis=0, return_inverse=True)
+    for g, (a, d) in enumerate(uniq):
+        rows = np.flatnonzero(grp.ravel() == g)
+        cut = replace(problem.setup.cut, radial_depth_m=float(a), milling="down" if d else "up")
+        out[rows] = reference_limits(problem.truth, problem.setup.tool, cut, problem.truth_coefficients,
+                                     rpm[rows], method="sdm", steps_per_mode_period=40.0 if converged else 20.0,
+                                     min_steps=80 if converged else 40)
+    return out
+
+
+def random_cuts(problem: Problem, n: int, rng: np.random.Generator, *, immersions=(0.1, 0.25, 0.5, 1.0),
+                depth_range=None) -> CutTable:
+    """``n`` cuts: speeds uniform in the setup's range, radial immersions from ``immersions``,
+    up/down at random, axial depths log-uniform in ``depth_range`` (default 0.2 .. 5 x the
+    truth's smallest slotting limit), no outcome."""
+    lo, hi = problem.setup.limits.spindle_rpm
+    d = problem.setup.tool.diameter_m
+    rpm = rng.uniform(lo, hi, n)
+    ae = rng.choice(np.asarray(immersions), n) * d
+    down = rng.random(n) < 0.5
+    if depth_range is None:
+        ref = float(np.min(true_limits(problem, np.linspace(lo, hi, 25), np.full(25, d), np.ones(25, bool),
+                                       converged=False)))
+        depth_range = (0.3 * ref, 8.0 * ref)
+    ap = np.exp(rng.uniform(np.log(depth_range[0]), np.log(depth_range[1]), n))
+    return CutTable(rpm, ap, ae, down, np.full(n, -1), np.ones(n), np.full(n, np.nan), np.zeros(n, bool))
+
+
+def label(cuts: CutTable, limits: np.ndarray, rng: np.random.Generator, *, flip: float = 0.05) -> CutTable:
+    """Outcomes from the limits, a share ``flip`` of them flipped (mislabelled)."""
+    chatter = cuts.axial_depth_m >= limits
+    flipped = rng.random(cuts.n_cuts) < flip
+    out = np.where(chatter ^ flipped, CHATTER, STABLE)
+    return replace(cuts, outcome=out)

@@ -1,0 +1,256 @@
+"""Limit-depth tables of test cuts over the learned parameters (the fast forward model of ``learn``).
+
+The posterior over the modal parameters and cutting coefficients needs, for every parameter set
+and every test cut, the stability limit depth at that cut's speed and engagement. Two exact
+scalings of the milling equations (any number of modes, ZOA and SDM alike) remove two of the five
+parameter directions from the computation:
+
+* scaling every modal stiffness by ``s`` and the cutting coefficients by ``c`` (same ``Krc/Ktc``)
+  scales the limit depth by ``s / c`` (the equations see only ``a Ktc / k``);
+* scaling every natural frequency by ``F`` (damping ratios kept) is a change of time scale: the
+  limit at speed ``n`` equals the reference structure's limit at ``n / F``.
+
+So ``log b(theta) = T_j(log F, log zeta-factor, log ratio-factor) + log s - log c`` where the
+table ``T_j`` of cut ``j`` is the log limit of the *reference* structure (the prior) at the speeds
+``n_j / F`` for a grid of damping and ratio factors: multilinear interpolation on that grid is the
+only approximation (its error against direct ZOA/SDM runs is measured in
+``tests/test_learn_posterior.py``). One SDM problem per (engagement, damping node, ratio node)
+solves all the cuts' speeds of that engagement at once (:meth:`stability.sdm.SDMProblem.limits`),
+one ZOA envelope likewise.
+
+The groups are shared by all modes ("frequency", "stiffness", "damping" multiply every mode):
+for a one-mode tool this is each mode's own parameters; for several modes it is a restriction
+(notes/learn.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from oma.cutting import Cut, CuttingCoefficients, Tool
+from oma.modal import ModalModel
+
+__all__ = ["Grid", "LimitTable", "build_table", "reference_limits", "MAX_DEPTH_M"]
+
+MAX_DEPTH_M = 1.0  # a limit above this (or none) counts as this: no test cut is that deep
+SDM_BELOW_IMMERSION = 0.2  # ae/D below which the SDM is used (as `plan --method auto`)
+SDM_STEPS_PER_MODE_PERIOD, SDM_MIN_STEPS = 20.0, 40  # about 0.5 % from converged (bench_learn)
+
+
+@dataclass(frozen=True)
+class Grid:
+    """Nodes of the tables in log-multiplier space, and the SDM resolution used to fill them.
+
+    ``log_f_range``: the frequency factor's range ``(lo, hi)`` in log; ``log_speed_step``: spacing
+    of the log-speed lattice (the frequency axis, by the time scaling); ``log_zeta`` and
+    ``log_ratio``: increasing nodes of the damping and ``Krc/Ktc`` factors (one node fixes it);
+    ``sdm_steps``: (steps per period of the highest mode, fewest steps per tooth period).
+    """
+
+    log_f_range: tuple[float, float]
+    log_speed_step: float
+    log_zeta: np.ndarray
+    log_ratio: np.ndarray
+    sdm_steps: tuple[float, int] = (SDM_STEPS_PER_MODE_PERIOD, SDM_MIN_STEPS)
+
+    @classmethod
+    def around(cls, sd_f: float, sd_zeta: float, sd_ratio: float, *, step: float = 0.015, n_zeta: int = 4,
+               n_ratio: int = 3, span: float = 3.0, sdm_steps=(SDM_STEPS_PER_MODE_PERIOD, SDM_MIN_STEPS)) -> "Grid":
+        """Nodes over ``+-span`` standard deviations of each log factor (fixed when its sd is 0)."""
+        def nodes(sd, n):
+            return np.zeros(1) if sd <= 0 else np.linspace(-span * sd, span * sd, n)
+        return cls((-span * sd_f, span * sd_f), float(step), nodes(sd_zeta, n_zeta), nodes(sd_ratio, n_ratio),
+                   tuple(sdm_steps))
+
+    @classmethod
+    def covering(cls, u_f, u_zeta, u_ratio, *, bounds: "Grid", margin_sd: float = 2.0, step: float = 0.015,
+                 zeta_spacing: float = 0.3, ratio_spacing: float = 0.4, max_zeta: int = 4,
+                 max_ratio: int = 3) -> "Grid":
+        """Nodes covering samples (log factors) with ``margin_sd`` of their sd beyond the extreme
+        ones, inside ``bounds`` (the prior's grid): the fine grid of the second stage."""
+        def span(x, lo, hi, floor):
+            x = np.asarray(x, dtype=float)
+            m = margin_sd * max(float(np.std(x)), floor)
+            return max(lo, float(x.min()) - m), min(hi, float(x.max()) + m)
+
+        def nodes(x, prior_nodes, spacing, most):
+            if prior_nodes.size == 1:
+                return prior_nodes
+            lo, hi = span(x, prior_nodes[0], prior_nodes[-1], spacing / 4)
+            return np.linspace(lo, hi, int(np.clip(np.ceil((hi - lo) / spacing) + 1, 2, most)))
+
+        return cls(span(u_f, *bounds.log_f_range, step), float(step),
+                   nodes(u_zeta, bounds.log_zeta, zeta_spacing, max_zeta),
+                   nodes(u_ratio, bounds.log_ratio, ratio_spacing, max_ratio), bounds.sdm_steps)
+
+
+@dataclass(frozen=True)
+class LimitTable:
+    """``log`` limit depth (m) of the reference structure (the prior) per engagement.
+
+    For engagement ``g``: ``values[g]`` of shape ``(n_lattice_g, n_zeta, n_ratio)`` at the log
+    speeds ``lattice[g] * step``. Cut ``j`` has engagement ``group[j]`` and speed ``rpm[j]``.
+    """
+
+    grid: Grid
+    engagements: tuple[tuple[float, bool], ...]
+    lattice: tuple[np.ndarray, ...]
+    values: tuple[np.ndarray, ...]
+    group: np.ndarray
+    rpm: np.ndarray
+    methods: tuple[str, ...]
+
+    @property
+    def n_cuts(self) -> int:
+        return int(self.rpm.size)
+
+    def log_limit(self, u_f, u_k, u_zeta, u_kt, u_kr, *, cuts=None) -> np.ndarray:
+        """``log`` limit depth, shape ``(n_samples, n_cuts)``, for log-multipliers each of shape
+        ``(n_samples,)``: frequency, stiffness, damping, ``Ktc``, ``Krc`` factors.
+
+        ``cuts`` (indices) restricts the result to those cuts.
+        """
+        u_f, u_k, u_zeta, u_kt, u_kr = (np.atleast_1d(np.asarray(x, dtype=float)) for x in
+                                        (u_f, u_k, u_zeta, u_kt, u_kr))
+        cuts = np.arange(self.n_cuts) if cuts is None else np.asarray(cuts, dtype=int)
+        out = np.empty((u_f.size, cuts.size))
+        f_lo, f_hi = self.grid.log_f_range
+        h = self.grid.log_speed_step
+        uf = np.clip(u_f, f_lo, f_hi)
+        zw = _bracket(self.grid.log_zeta, u_zeta)
+        rw = _bracket(self.grid.log_ratio, u_kr - u_kt)
+        for g in np.unique(self.group[cuts]):
+            cols = np.flatnonzero(self.group[cuts] == g)
+            lat, val = self.lattice[g], self.values[g]
+            x = (np.log(self.rpm[cuts[cols]])[None, :] - uf[:, None]) / h  # (N, c) lattice units
+            i0 = np.floor(x).astype(np.int64)
+            t = x - i0
+            r0 = np.clip(np.searchsorted(lat, i0), 0, lat.size - 2)
+            acc = np.zeros(x.shape)
+            for (iz, wz) in zw:
+                for (ir, wr) in rw:
+                    w = (wz * wr)[:, None]
+                    acc += w * ((1.0 - t) * val[r0, iz[:, None], ir[:, None]] +
+                                t * val[r0 + 1, iz[:, None], ir[:, None]])
+            out[:, cols] = acc
+        return out + (u_k - u_kt)[:, None]
+
+
+def _bracket(nodes: np.ndarray, x: np.ndarray):
+    """Lower/upper node index and weight of linear interpolation, clipped to the nodes' range:
+    ``[(i_lo, w_lo), (i_hi, w_hi)]``."""
+    if nodes.size == 1:
+        z = np.zeros(x.shape, dtype=int)
+        return [(z, np.ones(x.shape)), (z, np.zeros(x.shape))]
+    xc = np.clip(x, nodes[0], nodes[-1])
+    i = np.clip(np.searchsorted(nodes, xc, side="right") - 1, 0, nodes.size - 2)
+    t = (xc - nodes[i]) / (nodes[i + 1] - nodes[i])
+    return [(i, 1.0 - t), (i + 1, t)]
+
+
+def scaled_model(model: ModalModel, *, log_f=0.0, log_k=0.0, log_zeta=0.0) -> ModalModel:
+    """The model with every frequency, stiffness and damping ratio multiplied by ``exp(.)``
+    (damping ratios kept below 1)."""
+    return replace(model, natural_frequency_hz=model.natural_frequency_hz * np.exp(log_f),
+                   stiffness_N_m=model.stiffness_N_m * np.exp(log_k),
+                   damping_ratio=np.minimum(model.damping_ratio * np.exp(log_zeta), 0.95))
+
+
+def scaled_coefficients(coefficients: CuttingCoefficients, *, log_kt=0.0, log_kr=0.0) -> CuttingCoefficients:
+    return replace(coefficients, Ktc_N_m2=coefficients.Ktc_N_m2 * np.exp(log_kt),
+                   Krc_N_m2=coefficients.Krc_N_m2 * np.exp(log_kr))
+
+
+def method_for(tool: Tool, radial_depth_m: float, method: str = "sdm") -> str:
+    """The method of one engagement: ``'sdm'`` or ``'zoa'`` as given; ``'auto'``: the SDM below
+    ``SDM_BELOW_IMMERSION`` radial immersion, else the ZOA (the rule of ``plan --method auto``).
+
+    The default is the SDM everywhere: for a 2-flute straight tool even slotting, the ZOA limit
+    is 50 % above the converged SDM's at high speed (measured, notes/learn.md), far more than the
+    3 % soft boundary of the likelihood.
+    """
+    if method not in ("auto", "sdm", "zoa"):
+        raise ValueError(f"method must be one of 'auto', 'sdm', 'zoa', found {method!r}")
+    if method != "auto":
+        return method
+    return "sdm" if radial_depth_m / tool.diameter_m < SDM_BELOW_IMMERSION else "zoa"
+
+
+def reference_limits(model: ModalModel, tool: Tool, cut: Cut, coefficients: CuttingCoefficients, rpm, *,
+                     method: str, steps_per_mode_period: float = SDM_STEPS_PER_MODE_PERIOD,
+                     min_steps: int = SDM_MIN_STEPS) -> np.ndarray:
+    """Limit depth (m, capped at ``MAX_DEPTH_M``) of one engagement at many speeds, any order."""
+    from stability import zoa
+    from stability.sdm import SDMProblem, steps_per_period
+
+    rpm = np.asarray(rpm, dtype=float).ravel()
+    uniq, inverse = np.unique(rpm, return_inverse=True)
+    if method == "zoa":
+        env = zoa.envelope(model, tool, cut, coefficients, uniq, n_freq=2000)
+        depth = np.asarray(env.depth_limit_m)[~np.asarray(env.is_intersection)]
+    else:
+        problem = SDMProblem(model, tool, cut, coefficients)
+        steps = steps_per_period(problem, uniq, steps_per_mode_period=steps_per_mode_period,
+                                 min_steps=min_steps)
+        guess = np.asarray(zoa.envelope(model, tool, cut, coefficients, uniq, n_freq=2000).depth_limit_m)
+        guess = guess[: uniq.size] if guess.size == uniq.size else np.full(uniq.size, np.nan)
+        out = problem.limits(uniq, steps, guess_m=np.where(np.isfinite(guess), guess, np.nan),
+                             depth_rtol=2e-3, max_depth_m=MAX_DEPTH_M, chatter_frequency=False)
+        depth = np.array([o.depth_limit_m for o in out])
+    depth = np.where(np.isfinite(depth), np.minimum(depth, MAX_DEPTH_M), MAX_DEPTH_M)
+    return depth[inverse]
+
+
+def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients,
+                rpm, radial_depth_m, down, grid: Grid, *, method: str = "sdm") -> LimitTable:
+    """The :class:`LimitTable` of cuts given by speed, radial depth and milling.
+
+    Per engagement, the log-speed lattice holds every lattice point of ``log n_j - log_f_range``
+    (plus one step each side) for each cut ``j``, so a cut costs ``range / step`` limits at most
+    and cuts of one engagement at nearby speeds share them.
+
+    Parameters
+    ----------
+    model, tool, coefficients
+        The reference (prior) structure and force model.
+    base_cut : Cut
+        Supplies the cutting frame (feed and normal directions) of the setup.
+    rpm, radial_depth_m : array_like, shape (n_cuts,)
+    down : array_like of bool, shape (n_cuts,)
+        Down milling (else up).
+    grid : Grid
+    method : {'sdm', 'zoa', 'auto'}
+        See :func:`method_for`.
+    """
+    rpm = np.asarray(rpm, dtype=float).ravel()
+    ae = np.asarray(radial_depth_m, dtype=float).ravel()
+    down = np.asarray(down, dtype=bool).ravel()
+    h = grid.log_speed_step
+    f_lo, f_hi = grid.log_f_range
+    keys = np.stack([ae, down.astype(float)], axis=1)
+    uniq, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.ravel()
+    lattices, tables, engagements = [], [], []
+    for g, (a, d) in enumerate(uniq):
+        x = np.log(rpm[group == g]) / h
+        lo, hi = np.floor(x - f_hi / h) - 1, np.ceil(x - f_lo / h) + 1
+        lat = np.unique(np.concatenate([np.arange(l0, h0 + 1) for l0, h0 in zip(lo, hi)]).astype(np.int64))
+        cut = replace(base_cut, radial_depth_m=float(a), milling="down" if d else "up")
+        how = method_for(tool, float(a), method)
+        val = np.empty((lat.size, grid.log_zeta.size, grid.log_ratio.size))
+        for iz, lz in enumerate(grid.log_zeta):
+            ref = scaled_model(model, log_zeta=lz)
+            for ir, lr in enumerate(grid.log_ratio):
+                coef = scaled_coefficients(coefficients, log_kr=lr)
+                val[:, iz, ir] = np.log(reference_limits(ref, tool, cut, coef, np.exp(lat * h), method=how,
+                                                        steps_per_mode_period=grid.sdm_steps[0],
+                                                        min_steps=grid.sdm_steps[1]))
+        val.setflags(write=False)
+        lattices.append(lat)
+        tables.append(val)
+        engagements.append((float(a), bool(d)))
+    methods = tuple(method_for(tool, a, method) for a in ae)
+    return LimitTable(grid=grid, engagements=tuple(engagements), lattice=tuple(lattices), values=tuple(tables),
+                      group=group, rpm=rpm, methods=methods)

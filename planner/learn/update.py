@@ -1,0 +1,183 @@
+"""``learn``: from a prior and test-cut outcomes to the posterior, its accuracy and its warnings."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from oma.cutting import CuttingCoefficients
+from oma.modal import ModalModel
+
+from .likelihood import CHATTER, STABLE, Likelihood
+from .outcomes_io import CutTable
+from .posterior import PARAMETERS, Posterior, PriorSD, smc
+from .tables import Grid, LimitTable, build_table
+
+__all__ = ["LearnResult", "learn", "table_for", "loo_probability_stable"]
+
+
+@dataclass(frozen=True)
+class LearnResult:
+    """What ``robomill learn`` reports (cli.md)."""
+
+    posterior: Posterior
+    table: LimitTable
+    accuracy_before: float
+    accuracy_after: float
+    prior_probability_stable: np.ndarray
+    loo_probability_stable: np.ndarray
+    warnings: tuple[str, ...]
+    timings_s: dict = field(default_factory=dict)
+    log_evidence: float = float("nan")
+
+    def to_dict(self) -> dict:
+        model, coef = self.posterior.map_model()
+        from oma.modal_io import modal_model_to_dict
+
+        return {"parameters": self.posterior.parameters(), "map_model": modal_model_to_dict(model),
+                "map_coefficients": {"Ktc_N_m2": coef.Ktc_N_m2, "Krc_N_m2": coef.Krc_N_m2},
+                "accuracy_before": self.accuracy_before, "accuracy_after": self.accuracy_after,
+                "cause": self.posterior.cause(), "warnings": list(self.warnings),
+                "likelihood": self.posterior.likelihood.to_dict(),
+                "samples": int(self.posterior.samples.shape[0]), "timings_s": self.timings_s}
+
+
+def grid_for(prior_log_sd: np.ndarray, *, coarse: bool = False) -> Grid:
+    """Table nodes over +-3 prior sds (the ratio's log-sd from the two coefficients'); ``coarse``:
+    the first stage's (speed step 0.03, 3 damping and 2 ratio nodes, SDM at 10 steps per mode
+    period)."""
+    sd_ratio = float(np.hypot(prior_log_sd[3], prior_log_sd[4]))
+    if coarse:
+        return Grid.around(float(prior_log_sd[0]), float(prior_log_sd[2]), sd_ratio, step=0.03, n_zeta=3,
+                           n_ratio=2, sdm_steps=(10.0, 20))
+    return Grid.around(float(prior_log_sd[0]), float(prior_log_sd[2]), sd_ratio)
+
+
+def table_for(model, setup, cuts: CutTable, grid: Grid, *, method: str = "sdm") -> LimitTable:
+    return build_table(model, setup.tool, setup.cut, setup.material.cutting_coefficients, cuts.spindle_rpm,
+                       cuts.radial_depth_m, cuts.down, grid, method=method)
+
+
+def _accuracy(p_stable: np.ndarray, cuts: CutTable) -> float:
+    """Share of marked stable/chatter cuts on the right side of P(stable) = 0.5 (label-weighted)."""
+    sel = (cuts.outcome == STABLE) | (cuts.outcome == CHATTER)
+    if not sel.any():
+        return float("nan")
+    right = (p_stable[sel] >= 0.5) == (cuts.outcome[sel] == STABLE)
+    return float(np.average(right, weights=cuts.weight[sel]))
+
+
+def loo_probability_stable(log_terms: np.ndarray, p_stable_each: np.ndarray) -> np.ndarray:
+    """Leave-one-out P(stable) of each cut by importance sampling of the posterior samples with
+    weights ``1 / L_j`` (Gelfand, Dey & Chang 1992), truncated at ``sqrt(N)`` times their mean
+    (Ionides, J. Comput. Graph. Stat. 17, 2008) so that one sample cannot dominate.
+
+    ``log_terms``, ``p_stable_each``: shape (n_samples, n_cuts).
+    """
+    logw = -log_terms
+    logw = logw - logw.max(axis=0)
+    w = np.exp(logw)
+    cap = w.mean(axis=0) * np.sqrt(w.shape[0])
+    w = np.minimum(w, cap)
+    return np.sum(w * p_stable_each, axis=0) / np.sum(w, axis=0)
+
+
+def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = PriorSD(),
+          likelihood: Likelihood = Likelihood(), n_particles: int = 2000, seed: int = 0,
+          free: tuple[str, ...] | None = None, table: LimitTable | None = None,
+          method: str = "sdm") -> LearnResult:
+    """The posterior of the prior's modes and cutting coefficients given test-cut outcomes.
+
+    Parameters
+    ----------
+    setup : stability.setup.Setup
+        Tool, cutting frame and the prior cutting coefficients (``material``).
+    prior : ModalModel
+        The prior modal model.
+    cuts : CutTable
+        Test cuts with outcomes.
+    prior_sd : PriorSD
+    likelihood : Likelihood
+    n_particles : int
+    seed : int
+    free : tuple of str, optional
+        Names of :data:`PARAMETERS` to learn (default all with a non-zero sd); others stay at the
+        prior's values.
+    table : LimitTable, optional
+        A precomputed table of these cuts (tests, benchmarks).
+    method : {'sdm', 'zoa', 'auto'}
+        Stability method per engagement (:func:`planner.learn.tables.method_for`).
+    """
+    t0 = time.perf_counter()
+    coef: CuttingCoefficients = setup.material.cutting_coefficients
+    sd = prior_sd.log_sds()
+    if free is not None:
+        sd = np.where([p in free for p in PARAMETERS], sd, 0.0)
+    active = np.flatnonzero(sd > 0)
+    log_a = np.log(cuts.axial_depth_m)
+    labelled = cuts.outcome >= 0
+
+    def full(x):
+        u = np.zeros((x.shape[0], 5))
+        u[:, active] = x
+        return u
+
+    def terms(u, table):
+        lb = table.log_limit(u[:, 0], u[:, 1], u[:, 2], u[:, 3], u[:, 4])
+        return likelihood.log_terms(log_a[None, :] - lb, cuts.outcome, np.where(labelled, cuts.weight, 0.0)), lb
+
+    rng = np.random.default_rng(seed)
+    stages = []
+    if table is None:
+        # coarse to fine: a coarse table over the prior's 3 sds (SDM at half the steps: ~2.5 %
+        # from converged) locates the posterior; the fine table covers only where it lies, with a
+        # margin of 2 sds beyond its extreme samples (notes/learn.md: why, and what it costs)
+        coarse = table_for(prior, setup, cuts, grid_for(sd, coarse=True), method=method)
+        res0 = smc(lambda x: terms(full(x), coarse)[0].sum(axis=1), sd[active], rng=rng,
+                   n_particles=max(500, n_particles // 2))
+        u0 = full(res0.samples)
+        stages.append(time.perf_counter() - t0)
+        table = table_for(prior, setup, cuts, Grid.covering(u0[:, 0], u0[:, 2], u0[:, 4] - u0[:, 3],
+                                                            bounds=grid_for(sd), max_zeta=3, max_ratio=2),
+                          method=method)
+    t1 = time.perf_counter()
+    res = smc(lambda x: terms(full(x), table)[0].sum(axis=1), sd[active], rng=rng, n_particles=n_particles)
+    t2 = time.perf_counter()
+    u = full(res.samples)
+    tt, lb = terms(u, table)
+    p_each = 1.0 - likelihood.p_chatter(log_a[None, :] - lb)
+    log_prior = -0.5 * np.sum((res.samples / sd[active]) ** 2, axis=1)
+    post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u,
+                     log_posterior=tt.sum(axis=1) + log_prior, likelihood=likelihood, method=method)
+    # the prior's own prediction: fresh prior samples (no data used, so no cross-validation needed)
+    u0 = np.zeros((n_particles, 5))
+    u0[:, active] = np.random.default_rng(seed + 1).standard_normal((n_particles, active.size)) * sd[active]
+    p_prior = np.mean(1.0 - likelihood.p_chatter(log_a[None, :] - table.log_limit(*u0.T)), axis=0)
+    p_loo = loo_probability_stable(tt, p_each)
+    warnings = []
+    for name in post.unpinned():
+        warnings.append(f"the cuts do not pin down {name}: its posterior sd is still above 80 % of the prior's")
+    acc_min = min(res.acceptance) if res.acceptance else 1.0
+    if acc_min < 0.02:
+        warnings.append(f"the sampler's acceptance fell to {acc_min:.3f}: the posterior may be under-explored")
+    if {"stiffness", "Ktc"} <= set(post.unpinned()) and sd[1] > 0 and sd[3] > 0:
+        ratio_sd = float(np.std(u[:, 1] - u[:, 3]) / np.hypot(sd[1], sd[3]))
+        if ratio_sd < 0.8:
+            warnings.append(f"stability depends on stiffness / Ktc only: the cuts pin down their ratio "
+                            f"(sd {ratio_sd:.2f} of the prior's), not each; the prior decides the split")
+    f_lo, f_hi = table.grid.log_f_range
+    edge = (u[:, 0] <= f_lo + 1e-9) | (u[:, 0] >= f_hi - 1e-9)
+    if active.size and sd[0] > 0 and edge.mean() > 0.05:
+        warnings.append("the frequency posterior piles up at the edge of the table's range: the prior is too "
+                        "narrow (or the cuts contradict it); widen --prior-sd frequency")
+    acc_b, acc_a = _accuracy(p_prior, cuts), _accuracy(p_loo, cuts)
+    if np.isfinite(acc_a) and acc_a < 0.7:
+        warnings.append(f"cross-validated accuracy {acc_a:.2f} is low: the model cannot explain the outcomes "
+                        "(noisy marks, worn tool, a mode missing from the prior?)")
+    timings = {"coarse_stage": stages[0] if stages else 0.0, "tables": t1 - t0, "sampling": t2 - t1,
+               "total": time.perf_counter() - t0}
+    return LearnResult(posterior=post, table=table, accuracy_before=acc_b, accuracy_after=acc_a,
+                       prior_probability_stable=p_prior, loo_probability_stable=p_loo,
+                       warnings=tuple(warnings), timings_s=timings, log_evidence=res.log_evidence)

@@ -1,0 +1,144 @@
+"""``robomill learn`` end to end (in-process), and every bad input: exit 2, one line, nothing written."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from oma.modal_io import read_modal_model, write_modal_model
+from planner.cli import main
+from planner.learn.outcomes_io import CutsError, read_cuts
+from planner.learn.posterior_io import read_posterior
+from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
+from stability.setup_io import write_setup
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("learn")
+    problem = tool_problem(u_prior=(0.05, -0.3, 0.2, 0.1, 0.0))
+    write_setup(problem.setup, d / "setup.yaml")
+    write_modal_model(problem.prior, d / "prior.yaml")
+    rng = np.random.default_rng(4)
+    cuts = random_cuts(problem, 10, rng, immersions=(0.5, 1.0), depth_range=(1e-3, 15e-3))
+    cuts = label(cuts, true_limits(problem, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, converged=False),
+                 rng, flip=0.0)
+    words = {0: "stable", 1: "chatter"}
+    lines = ["spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome,x_operator"]
+    for i in range(cuts.n_cuts):
+        lines.append(f"{cuts.spindle_rpm[i]},{cuts.axial_depth_m[i]},{cuts.radial_depth_m[i]},"
+                     f"{'down' if cuts.down[i] else 'up'},{words[int(cuts.outcome[i])]},ann")
+    lines.append(f"12000,0.002,{0.5 * 0.0127},down,uncertain,bob")
+    (d / "cuts.csv").write_text("\n".join(lines) + "\n")
+    (d / "predict.csv").write_text("spindle_rpm,axial_depth_m,radial_depth_m,milling\n"
+                                   f"10000,0.0005,{0.0127},down\n10000,0.05,{0.0127},down\n")
+    return d, problem
+
+
+def _run(capsys, argv):
+    code = main(argv)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_learn_writes_a_posterior_that_reads_back(files, capsys):
+    d, problem = files
+    code, out, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
+                                   str(d / "cuts.csv"), "--method", "zoa", "--samples", "400", "--predict",
+                                   str(d / "predict.csv"), "--suggest", "2", "-o", str(d / "post.yaml"),
+                                   "--plot", str(d / "lobes.png"), "--rpm", "8000", "20000", "--json"])
+    assert code == 0, err
+    res = json.loads(out)
+    for key in ("parameters", "map_model", "accuracy_before", "accuracy_after", "cause", "predictions",
+                "suggested", "warnings"):
+        assert key in res
+    assert res["map_model"]["format"] == "robomill-modal/1"
+    assert res["cause"] in ("frequency", "stiffness", "damping", "Ktc", "Krc")
+    # a shallow cut is surely stable, a 50 mm slot surely chatters
+    p = [x["probability_stable"] for x in res["predictions"]]
+    assert p[0] > 0.95 and p[1] < 0.05
+    assert len(res["suggested"]) == 2 and all(s["outcome"] == "" for s in res["suggested"])
+    # the posterior file is an ordinary modal model for every reader (x_posterior ignored) ...
+    model = read_modal_model(d / "post.yaml")
+    assert model.n_modes == 1
+    # ... and its samples read back
+    post = read_posterior(d / "post.yaml")
+    assert post is not None and post.samples.shape[1] == 5
+    np.testing.assert_allclose(post.reference.natural_frequency_hz, problem.prior.natural_frequency_hz)
+    np.testing.assert_allclose(post.model_at(post.samples[0])[0].natural_frequency_hz, model.natural_frequency_hz)
+    assert read_posterior(d / "prior.yaml") is None
+    assert (d / "lobes.png").stat().st_size > 1000
+
+
+def _bad(d, name, text):
+    p = d / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("body,match", [
+    ("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome\n1e4,1e-3,5e-3,down,stable\n"
+     "1e4,2e-3,5e-3,down,wobbly\n1e4,3e-3,5e-3,down,chatter\n", "outcome: expected stable, chatter or uncertain"),
+    ("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome\n1e4,1e-3,5e-3,down,stable\n"
+     "1e4,2e-3,0.02,down,stable\n1e4,3e-3,5e-3,down,chatter\n", "radial_depth_m: expected at most the tool diameter"),
+    ("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome\n1e4,1e-3,5e-3,down,stable\n"
+     "1e4,-2e-3,5e-3,down,stable\n1e4,3e-3,5e-3,down,chatter\n", "axial_depth_m: expected a finite number > 0"),
+    ("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome\n1e4,1e-3,5e-3,down,stable\n"
+     "1e4,3e-3,5e-3,down,chatter\n", "rows: expected at least 3 cuts"),
+    ("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome\n1e4,1e-3,5e-3,side,stable\n"
+     "1e4,2e-3,5e-3,down,stable\n1e4,3e-3,5e-3,down,chatter\n", "milling: expected 'up' or 'down'"),
+    ("spindle_rpm,axial_depth_m,radial_depth_m,milling\n1e4,1e-3,5e-3,down\n", "header: expected a column 'outcome'"),
+])
+def test_bad_cuts_exit_2_nothing_written(files, capsys, tmp_path, body, match):
+    d, _ = files
+    cuts = _bad(tmp_path, "cuts.csv", body)
+    out = tmp_path / "post.yaml"
+    code, stdout, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
+                                      str(cuts), "-o", str(out)])
+    assert code == 2
+    assert match in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists() and stdout == ""
+
+
+def test_deeper_than_the_flutes_and_no_coefficients(files, capsys, tmp_path):
+    d, problem = files
+    code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
+                                 str(d / "cuts.csv"), "--flute-length", "0.003", "-o", str(tmp_path / "p.yaml")])
+    assert code == 2 and "at most the flute length" in err and not (tmp_path / "p.yaml").exists()
+    text = (d / "setup.yaml").read_text()
+    start = text.index("  cutting_coefficients")
+    rest = text[start:].split("\n")
+    keep = [rest[0]] + [ln for ln in rest[1:] if not ln.startswith("    ")]
+    no_coef = tmp_path / "setup.yaml"
+    no_coef.write_text(text[:start] + "\n".join(keep[1:]))
+    code, _, err = _run(capsys, ["learn", str(no_coef), "--model", str(d / "prior.yaml"), "--cuts",
+                                 str(d / "cuts.csv"), "-o", str(tmp_path / "p.yaml")])
+    assert code == 2 and "cutting" in err and err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
+
+
+def test_prior_sd_option(files, capsys, tmp_path):
+    d, _ = files
+    code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
+                                 str(d / "cuts.csv"), "--prior-sd", "stifness=0.2"])
+    assert code == 2 and "--prior-sd" in err
+
+
+def test_read_cuts_detects_outcome_from_record(tmp_path):
+    """A row with a record and no mark: the detector's outcome and confidence become the label."""
+    (tmp_path / "c.csv").write_text("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome,record\n"
+                                    "1e4,1e-3,5e-3,down,stable,\n1e4,2e-3,5e-3,up,,rec1\n1e4,3e-3,5e-3,down,chatter,\n")
+    seen = []
+
+    def detect(path, row):
+        seen.append(path.name)
+        return 1, 0.4
+
+    tool = tool_problem().setup.tool
+    t = read_cuts(tmp_path / "c.csv", tool=tool, detect=detect)
+    assert seen == ["rec1"] and t.outcome.tolist() == [0, 1, 1] and t.weight.tolist() == [1.0, 0.4, 1.0]
+    assert t.detected.tolist() == [False, True, False]
+    with pytest.raises(CutsError, match="unknown column"):
+        (tmp_path / "d.csv").write_text("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome,colour\n")
+        read_cuts(tmp_path / "d.csv", tool=tool)

@@ -1,0 +1,82 @@
+"""``plan`` and ``lobes`` given a model written by ``learn``: the chance constraint."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from oma.modal_io import write_modal_model
+from planner.cli import main
+from planner.learn.posterior import Posterior, PriorSD
+from planner.learn.posterior_io import read_posterior, write_posterior_model
+from planner.learn.predictive import ChanceLimit
+from planner.learn.synthetic import tool_problem
+from planner.learn.tables import reference_limits, scaled_coefficients, scaled_model
+from stability.setup import Limits
+from stability.setup_io import write_setup
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    """A posterior whose samples are drawn around the prior (frequency and stiffness free), the
+    setup slotting (ZOA learned) in a 9-12 krpm window."""
+    d = tmp_path_factory.mktemp("plan")
+    problem = tool_problem()
+    setup = replace(problem.setup, cut=replace(problem.setup.cut, radial_depth_m=problem.setup.tool.diameter_m),
+                    limits=Limits(spindle_rpm=(9000.0, 12000.0), axial_depth_m=(1e-4, 0.05),
+                                  feed_per_tooth_m=(5e-5, 1e-4), stability_margin=0.5))
+    rng = np.random.default_rng(7)
+    sd = PriorSD().log_sds() * np.array([1, 1, 0, 0, 0])
+    samples = rng.standard_normal((300, 5)) * sd * 0.3
+    post = Posterior(reference=problem.prior, coefficients=setup.material.cutting_coefficients, prior_log_sd=sd,
+                     samples=samples, log_posterior=-np.sum((samples[:, :2] / sd[:2]) ** 2, axis=1), method="zoa")
+    write_setup(setup, d / "setup.yaml")
+    write_posterior_model(post, d / "post.yaml")
+    write_modal_model(problem.prior, d / "prior.yaml")
+    return d, setup, post
+
+
+def test_chance_limit_is_the_quantile_of_direct_limits(case):
+    """The 95 % chance depth at a speed equals the 5 % quantile of the samples' own limits
+    computed directly (table interpolation error: 3 %, see test_learn_posterior)."""
+    _, setup, post = case
+    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.95)
+    rpm = np.array([9500.0, 11000.0])
+    direct = []
+    for u in post.thinned(60).samples:
+        model = scaled_model(post.reference, log_f=u[0], log_k=u[1], log_zeta=u[2])
+        coef = scaled_coefficients(post.coefficients, log_kt=u[3], log_kr=u[4])
+        direct.append(reference_limits(model, setup.tool, setup.cut, coef, rpm, method="zoa"))
+    q = np.quantile(np.array(direct), 0.05, axis=0)
+    np.testing.assert_allclose(limit(rpm), q, rtol=0.06)  # 60 vs 300 samples: quantile noise + table
+    assert np.all(limit(rpm) < np.median(np.array(direct), axis=0))
+    with pytest.raises(ValueError, match="probability"):
+        ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=1.0)
+
+
+def test_plan_with_a_posterior_uses_the_chance_constraint(case, capsys):
+    d, setup, post = case
+    code = main(["plan", str(d / "setup.yaml"), "--model", str(d / "post.yaml"), "--probability", "0.9", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert out["learned"]["probability"] == 0.9 and "cause" in out["learned"]
+    limit = ChanceLimit(read_posterior(d / "post.yaml"), setup, setup.limits.spindle_rpm, probability=0.9)
+    lim = float(limit(np.array([out["spindle_rpm"]]))[0])
+    # the plan respects the 90 % depth and not the (halving) margin factor
+    assert out["axial_depth_m"] <= lim * (1 + 1e-3)
+    if "stability" in out["active_constraints"]:
+        assert out["axial_depth_m"] > 0.9 * lim
+    code = main(["plan", str(d / "setup.yaml"), "--model", str(d / "post.yaml"), "--probability", "1.5"])
+    assert code == 2 and "--probability" in capsys.readouterr().err
+
+
+def test_lobes_with_a_posterior(case, capsys):
+    d, _, _ = case
+    code = main(["lobes", str(d / "setup.yaml"), "--model", str(d / "post.yaml"), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    q = out["probability_lobes"]["depth_at_probability_m"]
+    assert np.all(np.array(q["0.95"]) <= np.array(q["0.5"])) and np.all(np.array(q["0.5"]) <= np.array(q["0.05"]))
