@@ -92,6 +92,7 @@ def _motion(record: Record):
 def identify_output_only(records: Sequence[Record], *, scaling: str = "force_model",
                          coefficient_relative_sd: float = 0.15, band_hz=(4.0, 100.0), n_segments: int = 10,
                          level: float = 0.95, refine_harmonics: bool = True, max_line_hz: float | None = None,
+                         direction_sd: float | None = None,
                          **mode_options) -> OutputOnlyIdentification:
     """Identify the tool-tip modal model from the vibration channels alone.
 
@@ -155,7 +156,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         warnings.append("no mode found in the response")
     else:
         stiffness, why = _scale(records, slices, modes, quantity, axes, scaling, coefficient_relative_sd, level,
-                                max_line_hz if max_line_hz is not None else 1.5 * band_hz[1])
+                                max_line_hz if max_line_hz is not None else 1.5 * band_hz[1], direction_sd)
         if stiffness is None:
             warnings.append(f"modes not scaled: {why}")
         else:
@@ -178,7 +179,9 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     model = ModalModel(
         natural_frequency_hz=modes.freq_hz, damping_ratio=modes.damping_ratio,
-        stiffness_N_m=k if k.size else np.zeros(0), directions=modes.directions.reshape(-1, 3),
+        stiffness_N_m=k if k.size else np.zeros(0),
+        directions=(stiffness.directions if stiffness is not None and stiffness.directions is not None
+                    else modes.directions).reshape(-1, 3),
         joints_deg=next((r.joints_deg for r in records if r.joints_deg is not None), None),
         source={"method": "oma-output-only-ssi-cov", "scaling": used, "records": names, "trusted": trusted},
     ) if modes.n_modes else ModalModel(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)),
@@ -187,7 +190,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                                     warnings=tuple(warnings), quantity=quantity)
 
 
-def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coef_sd, level, max_line_hz):
+def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coef_sd, level, max_line_hz,
+           direction_sd):
     """Per-record lines and forces, then :func:`scale_modes`; (None, reason) when impossible."""
     order = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
     response, noise, force, lines, orders = [], [], [], [], []
@@ -228,7 +232,9 @@ def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coe
         return None, "no tooth-passing line stands out of the response (no harmonics to scale with)"
     result = scale_modes(modes.freq_hz, modes.damping_ratio, modes.directions, response, noise, force, lines, orders,
                          axes=axes, freq_se_hz=modes.freq_se_hz, damping_se=modes.damping_se,
-                         coefficient_relative_sd=coef_sd if scaling == "force_model" else 0.0, level=level)
+                         direction_se_rad=modes.direction_se_rad,
+                         coefficient_relative_sd=coef_sd if scaling == "force_model" else 0.0, level=level,
+                         direction_sd=direction_sd)
     return result, ""
 
 

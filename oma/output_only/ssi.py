@@ -305,13 +305,16 @@ def match_modes(poles: SSIPoles, freq_hz, shapes, *, tol_freq: float = 0.05, min
     -------
     freq_hz, damping_ratio : ndarray, shape (m,)
         NaN where no pole matched.
+    shapes : ndarray of complex, shape (l, m)
+        Mean shapes of the matched poles (NaN where none).
     """
     ref_f = np.asarray(freq_hz, dtype=float)
     out_f = np.full(ref_f.size, np.nan)
     out_z = np.full(ref_f.size, np.nan)
+    out_phi = np.full((poles.shapes.shape[0], ref_f.size), np.nan, dtype=complex)
     idx = np.flatnonzero(poles.stable)
     if idx.size == 0:
-        return out_f, out_z
+        return out_f, out_z, out_phi
     m = mac(np.asarray(shapes).reshape(-1, ref_f.size), poles.shapes[:, idx])
     for k, fr in enumerate(ref_f):
         d = np.abs(poles.freq_hz[idx] / fr - 1.0)
@@ -324,6 +327,5 @@ def match_modes(poles: SSIPoles, freq_hz, shapes, *, tol_freq: float = 0.05, min
             c = cand[poles.order[cand] == n]
             keep.append(c[int(np.argmin(np.abs(poles.freq_hz[c] - fr)))])
         keep = np.array(keep)
-        out_f[k] = _centre(poles.freq_hz[keep])
-        out_z[k] = _centre(poles.damping_ratio[keep])
-    return out_f, out_z
+        out_f[k], out_z[k], out_phi[:, k] = _summary(poles, keep)
+    return out_f, out_z, out_phi
