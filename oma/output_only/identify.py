@@ -26,6 +26,8 @@ from .scaling import StiffnessScaling, scale_modes, tooth_force_harmonics, with_
 __all__ = ["OutputOnlyIdentification", "identify_output_only", "compare_models", "MOTION_QUANTITIES"]
 
 MOTION_QUANTITIES = ("displacement", "velocity", "acceleration")
+#: Damping below which a mode is suspected to be a tone (warning only).
+LOW_DAMPING = 0.005
 AXES = ("X", "Y", "Z")
 
 
@@ -150,6 +152,10 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     if modes.rejected_hz.size:
         warnings.append("stable poles at milling lines taken for harmonics, not modes: "
                         + ", ".join(f"{f:.2f} Hz" for f in modes.rejected_hz))
+    for f, z in zip(modes.freq_hz, modes.damping_ratio):
+        if z < LOW_DAMPING:
+            warnings.append(f"mode at {f:.2f} Hz has {100 * z:.2f} % damping: a tone (a wandering harmonic, an "
+                            "electrical line) or a very lightly damped mode; robot modes have 2-10 %")
     stiffness = None
     used = "none"
     if modes.n_modes == 0:

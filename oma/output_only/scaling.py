@@ -244,9 +244,10 @@ def scale_modes(freq_hz, damping_ratio, directions, response, noise, force, line
             rel_mc = np.nanstd(logs, axis=0)
             # a draw that leaves a mode unscaled (c = 0) counts as an unbounded error
             rel_mc = np.where(np.mean(np.isfinite(logs), axis=0) < 0.9, np.inf, rel_mc)
-    stat = np.hypot(np.nan_to_num(rel_ls, nan=np.inf), np.nan_to_num(rel_mc, nan=np.inf))
-    stat = np.where(np.isfinite(stiffness), stat, np.inf)
-    total = np.hypot(stat, float(coefficient_relative_sd))
+    with np.errstate(over="ignore", invalid="ignore"):
+        stat = np.hypot(np.nan_to_num(rel_ls, nan=np.inf), np.nan_to_num(rel_mc, nan=np.inf))
+        stat = np.where(np.isfinite(stiffness), stat, np.inf)
+        total = np.hypot(stat, float(coefficient_relative_sd))
     from scipy import stats
 
     zq = stats.norm.ppf(0.5 + 0.5 * level)
