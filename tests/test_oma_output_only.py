@@ -20,7 +20,7 @@ from oma.output_only.modes import output_only_modes, real_direction
 from oma.output_only.scaling import scale_modes, tooth_force_harmonics
 from oma.output_only.shared import shared_dir
 from oma.output_only.ssi import output_correlations, segment_correlations, select_modes, ssi_poles
-from oma.output_only.uncertainty import jackknife, t_interval
+from oma.output_only.uncertainty import jackknife, t_interval, whittle_bound
 from oma.record import Channel, Record
 from oma.synthetic import (milling_force, paper_like_cut, paper_like_material, paper_like_model, paper_like_tool,
                            synthetic_record)
@@ -216,3 +216,35 @@ def test_shared_dir_follows_the_environment(monkeypatch, tmp_path):
     assert shared_dir() == tmp_path
     monkeypatch.delenv("ROBOMILL_SHARED")
     assert shared_dir().name == "shared"
+
+
+def test_whittle_bound_tends_to_the_small_damping_closed_form():
+    sd_f, sd_z = whittle_bound(10.0, 0.05, 20.0)
+    assert np.isclose(sd_f, np.sqrt(0.05 / (2 * np.pi * 10.0 * 20.0)), rtol=0.01)
+    assert np.isclose(sd_z, np.sqrt(1 / (2 * np.pi * 0.05 * 10.0 * 20.0)), rtol=0.02)
+    # four times the data, half the spread
+    assert np.isclose(whittle_bound(10.0, 0.05, 80.0)[0], sd_f / 2, rtol=1e-6)
+
+
+def test_real_hurco_accelerations_identified_but_not_trusted_without_coefficients():
+    # one real file of shared/data (its README): a 4000 rpm, 4-flute steel cut, 8 s of it
+    from oma.cutting import Cut, Tool
+    from planner.diagnosis.hurco import read_hurco_csv
+
+    path = shared_dir() / "data" / "milling-vibration-hurco" / "EBI_F20IN_T50_D0p05IN_4000RPM.csv"
+    if not path.exists():
+        pytest.skip(f"{path} not found (set ROBOMILL_SHARED)")
+    h = read_hurco_csv(path)
+    n = int(8.0 * h.sample_rate_hz)
+    acc = np.asarray(h.acceleration_m_s2)[:, n // 4: n // 4 + n]
+    cut = Cut(1e-4, 0.006, "down", [1, 0, 0], [0, 1, 0], spindle_rpm=4000.0)
+    rec = Record(h.sample_rate_hz, tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ"), acc,
+                 Tool(4, 0.0127), cut, name=path.name)
+    res = identify_output_only([rec], band_hz=(20.0, 600.0))
+    # the spindle found within 1 % of the name's 4000 rpm, from the response's own comb
+    assert abs(res.modes.harmonics[0].spindle_hz / (4000 / 60) - 1) < 0.01
+    assert res.scaling == "none" and not res.trusted
+    # no reported mode sits on a tooth-passing line with tone-like damping
+    lines = res.modes.harmonics[0].freq_hz
+    for f, z in zip(res.modes.freq_hz, res.modes.damping_ratio):
+        assert not (np.min(np.abs(lines / f - 1)) < 0.005 and z < 0.01)
