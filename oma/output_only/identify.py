@@ -169,10 +169,12 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
             used = scaling
             for k in np.flatnonzero(stiffness.too_far):
                 near = stiffness.lines_hz[np.argmin(np.abs(stiffness.lines_hz - modes.freq_hz[k]))]
+                sd = stiffness.statistical_relative_sd[k]
                 warnings.append(
                     f"mode at {modes.freq_hz[k]:.2f} Hz: the tooth-passing lines (nearest {near:.1f} Hz) are too far "
-                    f"from it or too weak to scale it well (stiffness uncertainty "
-                    f"{100 * stiffness.statistical_relative_sd[k]:.0f} % from the data alone)")
+                    f"from it or force it too weakly to scale it well (stiffness uncertainty "
+                    + (f"{100 * sd:.0f} %" if np.isfinite(sd) and sd < 100 else "unbounded")
+                    + " from the data alone)")
             if stiffness.misfit > 4.0:
                 warnings.append(f"the response lines disagree with the force model by more than their noise "
                                 f"(reduced chi-square {stiffness.misfit:.1f}): coefficients, runout or a mode "
