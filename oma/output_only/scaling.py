@@ -219,10 +219,19 @@ def scale_modes(freq_hz, damping_ratio, directions, response, noise, force, line
     c, chi2, a_r = _solve(design, x, w)
     dof = max(a_r.shape[0] - f.size - n_rec, 1)
     misfit = chi2 / dof
+    # misfit per axis (rows of the design are (axis, line) per record, Re then Im), and per mode
+    # weighted by where the mode moves: a mode the lines cannot explain on one axis (Z beside X)
+    # must not inflate the uncertainty of a mode on another axis
+    l = int(np.sum(axes))
+    resid = (design @ c - x) * w
+    axis_of_row = np.concatenate([np.repeat(np.arange(l), v.size) for v in lines_hz])
+    axis_misfit = np.array([np.mean(np.abs(resid[axis_of_row == a]) ** 2) / 2.0 if np.any(axis_of_row == a)
+                            else 1.0 for a in range(l)]) * (a_r.shape[0] / dof)
+    mode_misfit = (u[:, axes] ** 2) @ axis_misfit
     with np.errstate(divide="ignore", invalid="ignore"):
         stiffness = np.where(c > 0, 1.0 / c, np.nan)
-        cov = np.linalg.pinv(a_r.T @ a_r) * max(misfit, 1.0)
-        rel_ls = np.sqrt(np.diag(cov)) / c
+        cov = np.linalg.pinv(a_r.T @ a_r)
+        rel_ls = np.sqrt(np.diag(cov) * np.maximum(mode_misfit, 1.0)) / c
     rel_mc = np.zeros(f.size)
     if freq_se_hz is not None and damping_se is not None and n_draws > 1:
         gen = np.random.default_rng(rng)
