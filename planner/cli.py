@@ -78,7 +78,7 @@ def _cmd_identify_output_only(args) -> int:
         raise UsageError("--coefficient-uncertainty", "a relative standard deviation in [0, 1)",
                          repr(args.coefficient_uncertainty))
     records = [read_record(path) for path in args.records]
-    result = identify_output_only(records, coefficient_relative_sd=args.coefficient_uncertainty)
+    result = identify_output_only(records, scaling=args.scale_with, coefficient_relative_sd=args.coefficient_uncertainty)
     payload = result.to_dict()
     if all(r.has("force") for r in records) and result.model.n_modes:
         force_based = identify(records, method=args.method)
@@ -321,6 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="identify from the vibration channels alone, scaled by the cutting-force model")
     p.add_argument("--coefficient-uncertainty", type=float, default=0.15,
                    help="with --output-only: relative sd of the cutting coefficients (default 0.15)")
+    p.add_argument("--scale-with", choices=["force_model", "measured_force"], default="force_model",
+                   help="with --output-only: the force lines that scale the modes (default: the cutting-force model)")
     add_json(p)
     p.set_defaults(handler=_cmd_identify)
 
