@@ -274,7 +274,7 @@ def summarise_peers(case, peers, model):
 
 
 # ------------------------------------------------------------------------------------------ Hurco
-def hurco(max_files=None):
+def hurco(max_files=None, alias_up_to=4.0):
     from oma.cutting import Cut, Tool
     from oma.record import Channel, Record
     from planner.diagnosis.hurco import cutting_span, read_hurco_csv
@@ -284,7 +284,8 @@ def hurco(max_files=None):
     if not files:
         print(f"\n(no Hurco files under {folder}; set ROBOMILL_SHARED)")
         return
-    print(f"\n== real Hurco accelerations ({len(files)} files, no force, no coefficients): band 20-600 Hz ==")
+    print(f"\n== real Hurco accelerations ({len(files)} files, no force, no coefficients): band 20-600 Hz, "
+          f"spindle multiples up to {alias_up_to:g} fs removed where they fold into the band ==")
     found = []
     for path in files:
         h = read_hurco_csv(path)
@@ -300,7 +301,7 @@ def hurco(max_files=None):
                      tool, cut, name=path.name)
         t0 = time.process_time()
         try:
-            res = identify_output_only([rec], band_hz=(20.0, 600.0))
+            res = identify_output_only([rec], band_hz=(20.0, 600.0), alias_up_to=alias_up_to)
         except ValueError as exc:
             print(f"{path.name}: {exc}")
             continue
@@ -338,18 +339,20 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
     ap.add_argument("--no-hurco", action="store_true")
     ap.add_argument("--hurco-files", type=int, default=None)
+    ap.add_argument("--alias-up-to", type=float, default=4.0,
+                    help="Hurco: fold spindle multiples up to this many times fs (0.5: no aliasing assumed)")
     args = ap.parse_args(argv)
     from oma._linalg import single_threaded_blas
 
     with single_threaded_blas():
-        for case in args.cases:
+        for case in args.cases if args.seeds else ():
             rows = run_ours(case, range(args.seeds))
             model = EXTRA if case == "extra" else TRUTH
             summarise(case, rows, model)
             if args.peer_seeds:
                 summarise_peers(case, run_peers(case, range(args.peer_seeds)), model)
         if not args.no_hurco:
-            hurco(args.hurco_files)
+            hurco(args.hurco_files, args.alias_up_to)
     return 0
 
 

@@ -51,6 +51,8 @@ class ResponseHarmonics:
         Lines standing ``threshold_db`` above the broadband response in some channel.
     residual : ndarray, shape (n_channels, n_samples)
         The signal with the lines, its mean and a linear trend removed.
+    aliased : ndarray of bool, shape (n_h,)
+        Lines folded back from above the Nyquist frequency (``freq_hz`` is then where they land).
     """
 
     spindle_hz: float
@@ -62,6 +64,7 @@ class ResponseHarmonics:
     noise_amplitude: np.ndarray
     significant: np.ndarray
     residual: np.ndarray = field(repr=False)
+    aliased: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __post_init__(self):
         object.__setattr__(self, "freq_hz", _ro(self.freq_hz))
@@ -70,6 +73,7 @@ class ResponseHarmonics:
         object.__setattr__(self, "noise_amplitude", _ro(self.noise_amplitude))
         object.__setattr__(self, "significant", _ro(self.significant, bool))
         object.__setattr__(self, "residual", _ro(self.residual))
+        object.__setattr__(self, "aliased", _ro(self.aliased, bool))
 
     @property
     def found_hz(self) -> np.ndarray:
@@ -82,7 +86,7 @@ class ResponseHarmonics:
 
 def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | None, teeth: int, *,
                               refine: bool = True, search: float = 0.05, threshold_db: float = 10.0,
-                              nperseg: int | None = None) -> ResponseHarmonics:
+                              nperseg: int | None = None, alias_up_to: float = 0.5) -> ResponseHarmonics:
     """Find the milling lines of a response and regress them out.
 
     Parameters
@@ -99,6 +103,10 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
         Significance of a line over the broadband response at it.
     nperseg : int, optional
         Welch segment of the broadband level (about 0.5 Hz lines by default).
+    alias_up_to : float
+        Also remove the spindle multiples up to this many times the sampling rate, folded into
+        the band (for acquisitions without an anti-aliasing filter); 0.5: none (the default, for
+        properly filtered records).
     """
     y = np.array(y, dtype=float, ndmin=2)
     fs = float(sample_rate_hz)
@@ -107,10 +115,29 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
     if spindle_rpm is None or not spindle_rpm > 0:
         res = sps.detrend(y, axis=-1, type="linear")
         z = np.zeros((l, 0))
-        return ResponseHarmonics(0.0, 0.0, int(teeth), np.zeros(0), np.zeros(0, bool), z, z, np.zeros(0, bool), res)
+        return ResponseHarmonics(0.0, 0.0, int(teeth), np.zeros(0), np.zeros(0, bool), z, z, np.zeros(0, bool), res,
+                                 np.zeros(0, bool))
     nominal = float(spindle_rpm) / 60.0
     f0 = refine_spindle_frequency(y, fs, nominal, search=search) if refine else nominal
     freqs, tooth = harmonic_frequencies(f0, teeth, 0.5 * fs)
+    aliased = np.zeros(freqs.size, dtype=bool)
+    if alias_up_to > 0.5:
+        # spindle multiples above Nyquist fold back when the acquisition has no anti-aliasing filter
+        # (the Hurco files: 1650 Hz sampling, 600 Hz tooth lines, so their multiples land on every
+        # 50 Hz); fold them and keep those not within 1/T of a line already there
+        high, high_tooth = harmonic_frequencies(f0, teeth, alias_up_to * fs)
+        high, high_tooth = high[freqs.size:], high_tooth[freqs.size:]
+        folded = np.abs(high - fs * np.round(high / fs))
+        tol = 1.0 / (n / fs)
+        extra = []
+        for fa, tp in zip(folded, high_tooth):
+            taken = np.concatenate([freqs, [e[0] for e in extra]])
+            if tol < fa < 0.5 * fs - tol and np.min(np.abs(taken - fa)) > tol:
+                extra.append((fa, tp))
+        if extra:
+            freqs = np.concatenate([freqs, [e[0] for e in extra]])
+            tooth = np.concatenate([tooth, [e[1] for e in extra]])
+            aliased = np.concatenate([aliased, np.ones(len(extra), dtype=bool)])
     basis = harmonic_basis(t, freqs, trend=True)
     coef = lstsq_normal(basis, y.T)  # (n_cols, l)
     res = y - (basis @ coef).T
@@ -125,4 +152,4 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
         noise[:, k] = np.sqrt(2.0 * level / (n / fs))
     snr = np.abs(amp) / np.maximum(noise, np.finfo(float).tiny)
     significant = np.any(snr ** 2 > 10.0 ** (threshold_db / 10.0), axis=0)
-    return ResponseHarmonics(f0, nominal, int(teeth), freqs, tooth, amp, noise, significant, res)
+    return ResponseHarmonics(f0, nominal, int(teeth), freqs, tooth, amp, noise, significant, res, aliased)

@@ -206,7 +206,7 @@ def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coe
     for r, sl, h in zip(records, slices, modes.harmonics):
         if h.freq_hz.size == 0:
             continue
-        use = h.tooth_passing & h.significant & (h.freq_hz <= max_line_hz)
+        use = h.tooth_passing & h.significant & (h.freq_hz <= max_line_hz) & ~h.aliased
         if not np.any(use):
             continue
         hz = h.freq_hz[use]

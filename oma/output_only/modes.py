@@ -133,7 +133,7 @@ def output_only_modes(signals, *args, **kwargs) -> "OutputOnlyModes":
 def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, band_hz=(4.0, 100.0),
                       band_ratio: float | None = None, cycles: float = 2.0, lag_s: float | None = 0.12, max_order: int = 60, n_segments: int = 10, level: float = 0.95,
                       refine_harmonics: bool = True, integrate: int = 0,
-                       fdd_directions: bool = False) -> OutputOnlyModes:
+                       fdd_directions: bool = False, alias_up_to: float = 0.5) -> OutputOnlyModes:
     """Modes, with jackknife intervals, from one or more response records of one pose.
 
     Parameters
@@ -169,6 +169,9 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     integrate : {0, 1, 2}
         Integrate the residual this many times before SSI (frequency domain, high-pass at the
         band's lower end).
+    alias_up_to : float
+        Spindle multiples up to this many times the sampling rate are removed where they fold
+        into the band (:func:`remove_response_harmonics`); 0.5 (default): none.
     fdd_directions : bool
         Directions from the singular vectors of the output spectral matrix over each mode's
         half-power band (frequency-domain decomposition, Brincker, Zhang & Andersen 2001), the
@@ -182,7 +185,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     harmonics: list[ResponseHarmonics] = []
     residuals = []
     for s, rpm, z in zip(signals, spindle_rpm, teeth):
-        rh = remove_response_harmonics(s[axes], fs, rpm, int(z), refine=refine_harmonics)
+        rh = remove_response_harmonics(s[axes], fs, rpm, int(z), refine=refine_harmonics, alias_up_to=alias_up_to)
         harmonics.append(rh)
         res = rh.residual
         if integrate:
