@@ -160,6 +160,11 @@ def test_identify_output_only_scales_x_and_y_and_flags_what_it_cannot():
         assert abs(res.model.stiffness_N_m[j] / TRUTH.stiffness_N_m[k] - 1) < 0.10
     d = res.to_dict()
     assert {"model", "scaling", "stiffness_uncertainty", "modes", "warnings"} <= set(d)
+    fig, ax = res.plot()  # Agg: one error bar per mode, the 90 Hz line drawn
+    assert len(ax.lines) >= 1 and ax.get_xlabel() == "natural frequency (Hz)"
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
     assert all("stiffness_uncertainty" in m for m in d["modes"])
     json.dumps(d)
 

@@ -63,6 +63,10 @@ class OutputOnlyIdentification:
     def scaled(self) -> bool:
         return self.stiffness is not None and bool(np.all(np.isfinite(self.model.stiffness_N_m)))
 
+    def plot(self, ax=None, **kwargs):
+        """The modes with their intervals and the milling lines (:meth:`OutputOnlyModes.plot`)."""
+        return self.modes.plot(ax=ax, **kwargs)
+
     def to_dict(self) -> dict[str, Any]:
         """The ``identify --output-only --json`` object (cli.md keys plus the intervals)."""
         from ..identify import modal_mapping

@@ -102,6 +102,13 @@ class OutputOnlyModes:
     def n_modes(self) -> int:
         return int(self.freq_hz.size)
 
+    def plot(self, ax=None, **kwargs):
+        """Damping against frequency with intervals and the milling lines
+        (:func:`oma.output_only.plots.plot_output_only_modes`)."""
+        from .plots import plot_output_only_modes
+
+        return plot_output_only_modes(self, ax=ax, **kwargs)
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "modes": [
@@ -119,10 +126,6 @@ class OutputOnlyModes:
             "harmonics": [h.to_dict() for h in self.harmonics],
             "rejected_as_harmonics_hz": [float(f) for f in self.rejected_hz],
         }
-
-
-def _decimate(y, q):
-    return y if q <= 1 else sps.decimate(y, q, ftype="fir", axis=-1, zero_phase=True)
 
 
 def output_only_modes(signals, *args, **kwargs) -> "OutputOnlyModes":
