@@ -77,6 +77,9 @@ def _cmd_identify_output_only(args) -> int:
     if not 0 <= args.coefficient_uncertainty < 1:
         raise UsageError("--coefficient-uncertainty", "a relative standard deviation in [0, 1)",
                          repr(args.coefficient_uncertainty))
+    if args.reference:
+        raise UsageError("--reference", "no --reference with --output-only (compare the written model instead)",
+                         " ".join(args.reference))
     records = [read_record(path) for path in args.records]
     result = identify_output_only(records, scaling=args.scale_with, coefficient_relative_sd=args.coefficient_uncertainty)
     payload = result.to_dict()
@@ -87,6 +90,8 @@ def _cmd_identify_output_only(args) -> int:
     written = bool(args.output) and result.scaled
     if written:
         write_modal_model(result.model, args.output)
+    if args.plot:
+        save_figure(result.plot()[0], args.plot)
     elif args.output:
         payload["warnings"].append(f"no model written to {args.output}: the modes are not scaled")
 

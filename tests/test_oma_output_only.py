@@ -214,8 +214,12 @@ def test_cli_output_only_json_with_force_comparison(tmp_path, capsys):
     assert code in (0, 1) and ((tmp_path / "m.yaml").exists() == (code == 0))
     assert main(["identify", str(tmp_path / "rec"), "--output-only", "--coefficient-uncertainty", "2"]) == 2
     assert "coefficient-uncertainty" in capsys.readouterr().err
+    assert main(["identify", str(tmp_path / "rec"), "--output-only", "--reference", "x.csv"]) == 2
+    assert "--reference" in capsys.readouterr().err
     # the measured force lines scale the modes with no coefficient uncertainty to carry
-    main(["identify", str(tmp_path / "rec"), "--output-only", "--scale-with", "measured_force", "--json"])
+    main(["identify", str(tmp_path / "rec"), "--output-only", "--scale-with", "measured_force", "--json",
+          "--plot", str(tmp_path / "modes.png")])
+    assert (tmp_path / "modes.png").stat().st_size > 0
     measured = json.loads(capsys.readouterr().out)
     assert measured["scaling"] == "measured_force"
     assert all(s["coefficient_relative_sd"] == 0 for s in measured["stiffness_uncertainty"])
