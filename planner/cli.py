@@ -85,8 +85,14 @@ def _cmd_identify_output_only(args) -> int:
     payload = result.to_dict()
     if all(r.has("force") for r in records) and result.model.n_modes:
         force_based = identify(records, method=args.method)
+        comparison = compare_models(result.model, force_based.model)
+        ok = [c["stiffness_ratio"] for c, far in zip(comparison, result.stiffness.too_far if result.stiffness
+                                                                  is not None else [True] * len(comparison))
+              if c.get("stiffness_ratio") is not None and not far]
+        # the stiffness scales with the coefficients one for one: their ratio is the coefficients' error
         payload["force_based"] = {"model": force_based.to_dict()["model"], "trusted": bool(force_based.trusted),
-                                  "comparison": compare_models(result.model, force_based.model)}
+                                  "comparison": comparison,
+                                  "coefficient_ratio": float(np.median(ok)) if ok else None}
     written = bool(args.output) and result.scaled
     if written:
         write_modal_model(result.model, args.output)
@@ -111,6 +117,10 @@ def _cmd_identify_output_only(args) -> int:
                 lines.append(f"  vs force-based {c['reference_natural_frequency_hz']:.2f} Hz: frequency x"
                              f"{c['frequency_ratio']:.3f}, damping x{c['damping_ratio_ratio']:.2f}, stiffness x"
                              + (f"{c['stiffness_ratio']:.2f}" if c["stiffness_ratio"] is not None else "?"))
+        ratio = p.get("force_based", {}).get("coefficient_ratio")
+        if ratio is not None:
+            lines.append(f"  the cutting coefficients look x{ratio:.2f} of what the force channels say "
+                         "(output-only stiffness over force-based, scaled modes)")
         lines += [f"  warning: {w}" for w in p["warnings"]]
         if written:
             lines.append(f"model written to {args.output}")
