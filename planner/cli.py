@@ -72,7 +72,75 @@ def _cmd_predict(args) -> int:
     return EXIT_OK
 
 
+def _cmd_identify_output_only(args) -> int:
+    """``identify --output-only``: modes from the motion channels, stiffness from the force model;
+    with force channels in the records, also the force-based identification and the comparison."""
+    from oma.identify import identify
+    from oma.modal_io import write_modal_model
+    from oma.output_only.identify import compare_models, identify_output_only
+    from oma.record_io import read_record
+
+    if not 0 <= args.coefficient_uncertainty < 1:
+        raise UsageError("--coefficient-uncertainty", "a relative standard deviation in [0, 1)",
+                         repr(args.coefficient_uncertainty))
+    if args.reference:
+        raise UsageError("--reference", "no --reference with --output-only (compare the written model instead)",
+                         " ".join(args.reference))
+    records = [read_record(path) for path in args.records]
+    result = identify_output_only(records, scaling=args.scale_with, coefficient_relative_sd=args.coefficient_uncertainty)
+    payload = result.to_dict()
+    if all(r.has("force") for r in records) and result.model.n_modes:
+        force_based = identify(records, method=args.method)
+        comparison = compare_models(result.model, force_based.model)
+        ok = [c["stiffness_ratio"] for c, far in zip(comparison, result.stiffness.too_far if result.stiffness
+                                                                  is not None else [True] * len(comparison))
+              if c.get("stiffness_ratio") is not None and not far]
+        # the stiffness scales with the coefficients one for one: their ratio is the coefficients' error
+        payload["force_based"] = {"model": force_based.to_dict()["model"], "trusted": bool(force_based.trusted),
+                                  "comparison": comparison,
+                                  "coefficient_ratio": float(np.median(ok)) if ok else None}
+    written = bool(args.output) and result.scaled
+    if written:
+        write_modal_model(result.model, args.output)
+    if args.plot:
+        save_figure(result.plot()[0], args.plot)
+    elif args.output:
+        payload["warnings"].append(f"no model written to {args.output}: the modes are not scaled")
+
+    def human(p):
+        m = result.model
+        lines = [f"{m.n_modes} modes, output-only, scaling {p['scaling']} "
+                 f"({'trusted' if result.trusted else 'NOT trusted'}):"]
+        for mode in p["modes"]:
+            su = mode["stiffness_uncertainty"]
+            k = f"k {su['stiffness_N_m']:.3g} N/m +-{100 * su['relative_sd']:.0f} %" if su["stiffness_N_m"] else "k ?"
+            lines.append(f"  {mode['natural_frequency_hz']:7.2f} Hz [{mode['frequency_interval_hz'][0]:.2f}, "
+                         f"{mode['frequency_interval_hz'][1]:.2f}]  zeta {100 * mode['damping_ratio']:5.2f} % "
+                         f"[{100 * mode['damping_interval'][0]:.2f}, {100 * mode['damping_interval'][1]:.2f}]  {k}  "
+                         f"direction {np.round(mode['direction'], 3).tolist()}")
+        for c in p.get("force_based", {}).get("comparison", []):
+            if c.get("reference_natural_frequency_hz") is not None:
+                lines.append(f"  vs force-based {c['reference_natural_frequency_hz']:.2f} Hz: frequency x"
+                             f"{c['frequency_ratio']:.3f}, damping x{c['damping_ratio_ratio']:.2f}, stiffness x"
+                             + (f"{c['stiffness_ratio']:.2f}" if c["stiffness_ratio"] is not None else "?"))
+        ratio = p.get("force_based", {}).get("coefficient_ratio")
+        if ratio is not None:
+            lines.append(f"  the cutting coefficients look x{ratio:.2f} of what the force channels say "
+                         "(output-only stiffness over force-based, scaled modes)")
+        lines += [f"  warning: {w}" for w in p["warnings"]]
+        if written:
+            lines.append(f"model written to {args.output}")
+        return "\n".join(lines)
+
+    emit(args, payload, human)
+    if args.output and not written:
+        return EXIT_NEGATIVE
+    return EXIT_NEGATIVE if (args.strict and not result.trusted) else EXIT_OK
+
+
 def _cmd_identify(args) -> int:
+    if args.output_only:
+        return _cmd_identify_output_only(args)
     from oma.identify import ROBOT_BAND_HZ, identify
     from oma.modal_io import write_modal_model
     from oma.record_io import read_record
@@ -284,6 +352,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the axis of each .frf reference file, in order")
     p.add_argument("--band", nargs=2, type=float, default=None, metavar=("LO", "HI"),
                    help="band of the comparison, Hz (default 5-40, the robot's structural modes)")
+    p.add_argument("--output-only", action="store_true",
+                   help="identify from the vibration channels alone, scaled by the cutting-force model")
+    p.add_argument("--coefficient-uncertainty", type=float, default=0.15,
+                   help="with --output-only: relative sd of the cutting coefficients (default 0.15)")
+    p.add_argument("--scale-with", choices=["force_model", "measured_force"], default="force_model",
+                   help="with --output-only: the force lines that scale the modes (default: the cutting-force model)")
     add_json(p)
     p.set_defaults(handler=_cmd_identify)
 

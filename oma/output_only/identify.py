@@ -1,0 +1,275 @@
+"""``robomill identify --output-only``: modes from the response, stiffness from the force model.
+
+Chain: the motion channels of each record inside its cut window (displacement, velocity or
+acceleration, as recorded) -> harmonics out, SSI-cov, modes with jackknife intervals
+(:mod:`oma.output_only.modes`) -> the tooth-passing lines of the response against the force
+model's prediction of the same lines -> stiffness with its uncertainty
+(:mod:`oma.output_only.scaling`) -> a ``robomill-modal/1`` model. When the records also carry
+force, the same records can be identified the force-based way and the two compared
+(:func:`compare_models`): a check of the cutting coefficients.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import RecordError
+from ..modal import ModalModel
+from ..record import Record
+from ..signals import window_slice
+from .modes import OutputOnlyModes, output_only_modes
+from .scaling import StiffnessScaling, scale_modes, tooth_force_harmonics, with_spindle
+
+__all__ = ["OutputOnlyIdentification", "identify_output_only", "compare_models", "MOTION_QUANTITIES"]
+
+MOTION_QUANTITIES = ("displacement", "velocity", "acceleration")
+#: Damping below which a mode is suspected to be a tone (warning only).
+LOW_DAMPING = 0.005
+AXES = ("X", "Y", "Z")
+
+
+@dataclass(frozen=True)
+class OutputOnlyIdentification:
+    """Result of :func:`identify_output_only`.
+
+    Attributes
+    ----------
+    model : ModalModel
+        Frequencies, damping, directions from the response; stiffness from the force model (NaN
+        for a mode that could not be scaled).
+    modes : OutputOnlyModes
+        With the jackknife intervals of frequency and damping.
+    scaling : str
+        ``force_model``, ``measured_force`` or ``none``.
+    stiffness : StiffnessScaling or None
+    trusted : bool
+    warnings : tuple of str
+    quantity : str
+        What the records carried.
+    """
+
+    model: ModalModel
+    modes: OutputOnlyModes = field(repr=False)
+    scaling: str
+    stiffness: StiffnessScaling | None = field(repr=False)
+    trusted: bool
+    warnings: tuple
+    quantity: str
+
+    @property
+    def scaled(self) -> bool:
+        return self.stiffness is not None and bool(np.all(np.isfinite(self.model.stiffness_N_m)))
+
+    def plot(self, ax=None, **kwargs):
+        """The modes with their intervals and the milling lines (:meth:`OutputOnlyModes.plot`)."""
+        return self.modes.plot(ax=ax, **kwargs)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``identify --output-only --json`` object (cli.md keys plus the intervals)."""
+        from ..identify import modal_mapping
+
+        out: dict[str, Any] = {"model": modal_mapping(self.model), "scaling": self.scaling,
+                               "trusted": bool(self.trusted), "method": "output-only-ssi-cov",
+                               "quantity": self.quantity}
+        out.update(self.modes.to_dict())
+        unc = self.stiffness.to_dict() if self.stiffness is not None else [
+            {"stiffness_N_m": None, "relative_sd": None, "interval_N_m": [None, None]} for _ in range(self.model.n_modes)]
+        out["stiffness_uncertainty"] = unc
+        for m, s in zip(out["modes"], unc):
+            m["stiffness_uncertainty"] = s
+        if self.stiffness is not None:
+            out["scaling_misfit"] = float(self.stiffness.misfit)
+            out["scaling_lines_hz"] = [float(f) for f in self.stiffness.lines_hz]
+        out["warnings"] = list(self.warnings)
+        return out
+
+
+def _motion(record: Record):
+    for quantity in MOTION_QUANTITIES:
+        if record.has(quantity):
+            sl = window_slice(record)
+            return quantity, np.array(record.vector(quantity)[:, sl]), sl
+    raise RecordError(record.path, "signals.columns", "displacement, velocity or acceleration channels", "none")
+
+
+def identify_output_only(records: Sequence[Record], *, scaling: str = "force_model",
+                         coefficient_relative_sd: float = 0.15, band_hz=(4.0, 100.0), n_segments: int = 10,
+                         level: float = 0.95, refine_harmonics: bool = True, max_line_hz: float | None = None,
+                         direction_sd: float | None = None,
+                         **mode_options) -> OutputOnlyIdentification:
+    """Identify the tool-tip modal model from the vibration channels alone.
+
+    Parameters
+    ----------
+    records : sequence of Record
+        One pose; same sampling rate, same motion quantity and axes. Force channels, if present,
+        are ignored unless ``scaling='measured_force'``.
+    scaling : {'force_model', 'measured_force'}
+        Force lines from the cutting-force model (the record's ``material.cutting_coefficients``
+        and cut) or from the records' own force channels.
+    coefficient_relative_sd : float
+        Relative standard uncertainty of the cutting coefficients (carried into the stiffness
+        one for one; 0 with ``measured_force``). DOMAIN.md: database coefficients are commonly
+        10-30 % off.
+    band_hz : (float, float)
+        Band of the modes, Hz.
+    n_segments : int
+        Jackknife segments.
+    level : float
+        Coverage of all intervals.
+    """
+    if scaling not in ("force_model", "measured_force"):
+        raise ValueError(f"scaling must be 'force_model' or 'measured_force', not {scaling!r}")
+    records = list(records)
+    if not records:
+        raise ValueError("identify needs at least one record")
+    fs = float(records[0].sample_rate_hz)
+    quantity = None
+    signals, slices = [], []
+    for r in records:
+        if abs(r.sample_rate_hz - fs) > 1e-9 * fs:
+            raise RecordError(r.path, "sample_rate_hz", f"{fs} Hz like the first record", f"{r.sample_rate_hz} Hz")
+        q, y, sl = _motion(r)
+        if quantity is None:
+            quantity = q
+        elif q != quantity:
+            raise RecordError(r.path, "signals.columns", f"{quantity} channels like the first record", q)
+        signals.append(y)
+        slices.append(sl)
+    axes = ~np.all(np.isnan(signals[0]), axis=1)
+    for r, y in zip(records, signals):
+        if not np.array_equal(~np.all(np.isnan(y), axis=1), axes):
+            raise RecordError(r.path, "signals.columns", "motion along the same axes as the first record",
+                              "other axes")
+    warnings: list[str] = []
+    rpm = [r.cut.spindle_rpm for r in records]
+    teeth = [r.tool.teeth for r in records]
+    for r, v in zip(records, rpm):
+        if v is None or not v > 0:
+            warnings.append(f"{r.name or 'record'}: no spindle speed; milling harmonics not removed")
+    modes = output_only_modes(signals, fs, rpm, teeth, band_hz=band_hz, n_segments=n_segments, level=level,
+                              refine_harmonics=refine_harmonics, **mode_options)
+    warnings += list(modes.warnings)
+    if modes.rejected_hz.size:
+        warnings.append("stable poles at milling lines taken for harmonics, not modes: "
+                        + ", ".join(f"{f:.2f} Hz" for f in modes.rejected_hz))
+    for f, z in zip(modes.freq_hz, modes.damping_ratio):
+        if z < LOW_DAMPING:
+            warnings.append(f"mode at {f:.2f} Hz has {100 * z:.2f} % damping: a tone (a wandering harmonic, an "
+                            "electrical line) or a very lightly damped mode; robot modes have 2-10 %")
+    stiffness = None
+    used = "none"
+    if modes.n_modes == 0:
+        warnings.append("no mode found in the response")
+    else:
+        stiffness, why = _scale(records, slices, modes, quantity, axes, scaling, coefficient_relative_sd, level,
+                                max_line_hz if max_line_hz is not None else 1.5 * band_hz[1], direction_sd)
+        if stiffness is None:
+            warnings.append(f"modes not scaled: {why}")
+        else:
+            used = scaling
+            for k in np.flatnonzero(stiffness.too_far):
+                near = stiffness.lines_hz[np.argmin(np.abs(stiffness.lines_hz - modes.freq_hz[k]))]
+                sd = stiffness.statistical_relative_sd[k]
+                warnings.append(
+                    f"mode at {modes.freq_hz[k]:.2f} Hz: the tooth-passing lines (nearest {near:.1f} Hz) are too far "
+                    f"from it or force it too weakly to scale it well (stiffness uncertainty "
+                    + (f"{100 * sd:.0f} %" if np.isfinite(sd) and sd < 100 else "unbounded")
+                    + " from the data alone)")
+            if stiffness.misfit > 4.0:
+                warnings.append(f"the response lines disagree with the force model by more than their noise "
+                                f"(reduced chi-square {stiffness.misfit:.1f}): coefficients, runout or a mode "
+                                "missing from the model")
+    k = stiffness.stiffness_N_m if stiffness is not None else np.full(modes.n_modes, np.nan)
+    names = [r.name or f"record {i}" for i, r in enumerate(records)]
+    trusted = bool(modes.n_modes > 0 and stiffness is not None and not np.any(stiffness.too_far)
+                   and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se)))
+    if not trusted:
+        warnings.append("the identified model is NOT trusted (see the warnings above)")
+    model = ModalModel(
+        natural_frequency_hz=modes.freq_hz, damping_ratio=modes.damping_ratio,
+        stiffness_N_m=k if k.size else np.zeros(0),
+        directions=(stiffness.directions if stiffness is not None and stiffness.directions is not None
+                    else modes.directions).reshape(-1, 3),
+        joints_deg=next((r.joints_deg for r in records if r.joints_deg is not None), None),
+        source={"method": "oma-output-only-ssi-cov", "scaling": used, "records": names, "trusted": trusted},
+    ) if modes.n_modes else ModalModel(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)),
+                                       source={"method": "oma-output-only-ssi-cov", "records": names})
+    return OutputOnlyIdentification(model=model, modes=modes, scaling=used, stiffness=stiffness, trusted=trusted,
+                                    warnings=tuple(warnings), quantity=quantity)
+
+
+def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coef_sd, level, max_line_hz,
+           direction_sd):
+    """Per-record lines and forces, then :func:`scale_modes`; (None, reason) when impossible."""
+    order = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
+    response, noise, force, lines, orders = [], [], [], [], []
+    for r, sl, h in zip(records, slices, modes.harmonics):
+        if h.freq_hz.size == 0:
+            continue
+        use = h.tooth_passing & h.significant & (h.freq_hz <= max_line_hz) & ~h.aliased
+        if not np.any(use):
+            continue
+        hz = h.freq_hz[use]
+        h_orders = np.rint(hz / h.spindle_hz).astype(int)
+        conv = (2j * np.pi * hz) ** order
+        response.append(h.amplitude[:, use] / conv[None, :])
+        noise.append(h.noise_amplitude[:, use] / np.abs(conv)[None, :])
+        if scaling == "force_model":
+            coef = r.material.cutting_coefficients if r.material is not None else None
+            if coef is None:
+                return None, f"{r.name or 'record'} has no material.cutting_coefficients"
+            if r.cut.axial_depth_m is None:
+                return None, f"{r.name or 'record'} has no cut.axial_depth_m"
+            force.append(tooth_force_harmonics(r.tool, with_spindle(r.cut, h.spindle_hz), coef, h_orders))
+        else:
+            from ..harmonics import harmonic_basis
+            from .._linalg import lstsq_normal
+
+            f_rec = np.array(r.force[:, sl])
+            if np.any(np.all(np.isnan(f_rec), axis=1)):
+                return None, f"{r.name or 'record'} lacks force channels for measured_force scaling"
+            t = np.arange(f_rec.shape[1]) / r.sample_rate_hz
+            basis = harmonic_basis(t, h.freq_hz, trend=True)
+            cf = lstsq_normal(basis, f_rec.T)
+            amp = (cf[2::2] - 1j * cf[3::2]).T
+            force.append(amp[:, use])
+            h_orders = np.zeros_like(h_orders)  # measured force: same clock, no unknown angle
+        lines.append(hz)
+        orders.append(h_orders)
+    if not response:
+        return None, "no tooth-passing line stands out of the response (no harmonics to scale with)"
+    result = scale_modes(modes.freq_hz, modes.damping_ratio, modes.directions, response, noise, force, lines, orders,
+                         axes=axes, freq_se_hz=modes.freq_se_hz, damping_se=modes.damping_se,
+                         direction_se_rad=modes.direction_se_rad,
+                         coefficient_relative_sd=coef_sd if scaling == "force_model" else 0.0, level=level,
+                         direction_sd=direction_sd)
+    return result, ""
+
+
+def compare_models(output_only: ModalModel, reference: ModalModel) -> list[dict[str, Any]]:
+    """Pair each output-only mode with the reference mode nearest in frequency and direction.
+
+    Returns one entry per output-only mode: its frequency, the reference's, and the ratios of
+    frequency, damping and stiffness (output-only over reference); ``None`` when nothing pairs
+    (no reference mode within 10 % in frequency with ``|u . u_ref| > 0.7``).
+    """
+    out = []
+    for f, z, k, u in zip(output_only.natural_frequency_hz, output_only.damping_ratio, output_only.stiffness_N_m,
+                          output_only.directions):
+        d = np.abs(reference.natural_frequency_hz / f - 1.0)
+        ok = (d < 0.10) & (np.abs(reference.directions @ u) > 0.7)
+        if not np.any(ok):
+            out.append({"natural_frequency_hz": float(f), "reference": None})
+            continue
+        j = int(np.flatnonzero(ok)[np.argmin(d[ok])])
+        out.append({
+            "natural_frequency_hz": float(f), "reference_natural_frequency_hz": float(reference.natural_frequency_hz[j]),
+            "frequency_ratio": float(f / reference.natural_frequency_hz[j]),
+            "damping_ratio_ratio": float(z / reference.damping_ratio[j]),
+            "stiffness_ratio": float(k / reference.stiffness_N_m[j]) if np.isfinite(k) else None,
+        })
+    return out

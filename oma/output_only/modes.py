@@ -1,0 +1,322 @@
+"""Output-only modes of milling response records: harmonics out, SSI-cov, order from the data.
+
+Chain (robomill issue 14, item 1): per record, the spindle and tooth lines are located from the
+record's speed and teeth and regressed out (:mod:`oma.output_only.harmonics`); the residual is
+low-pass filtered and decimated to the analysis band, each channel scaled to unit variance, and
+cut into ``n_segments`` contiguous segments whose output correlations are computed. Their mean is
+the correlation of the data; SSI-cov poles at every even order, stability and clustering
+(:mod:`oma.output_only.ssi`) give the modes. A cluster that sits on a milling line with almost no
+damping is a harmonic the regression left behind (a wandering spindle), not a mode: it is
+reported as such. The delete-one-segment jackknife (:mod:`oma.output_only.uncertainty`) gives
+the standard errors of frequency and damping.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import signal as sps
+
+from .._arrays import readonly as _ro
+from .._linalg import single_threaded_blas
+from ..signals import integrate_frequency_domain
+from .harmonics import ResponseHarmonics, remove_response_harmonics
+from .ssi import StabilisedModes, mac, match_modes, segment_correlations, select_modes, ssi_poles
+from .uncertainty import jackknife, segment_bounds, t_interval
+
+__all__ = ["OutputOnlyModes", "output_only_modes", "real_direction"]
+
+#: A cluster within this relative distance of a milling line and less damped than
+#: :data:`HARMONIC_MAX_DAMPING` is taken for the line.
+HARMONIC_TOLERANCE = 0.005
+HARMONIC_MAX_DAMPING = 0.01
+
+
+def real_direction(shape) -> np.ndarray:
+    """Real unit direction of a complex mode shape: rotated to be as real as possible, largest
+    component positive."""
+    phi = np.asarray(shape, dtype=complex)
+    alpha = 0.5 * np.angle(np.sum(phi ** 2))
+    u = np.real(phi * np.exp(-1j * alpha))
+    u = u / max(np.linalg.norm(u), np.finfo(float).tiny)
+    return u if u[np.argmax(np.abs(u))] >= 0 else -u
+
+
+@dataclass(frozen=True)
+class OutputOnlyModes:
+    """Modes identified from response signals alone (no scale).
+
+    Attributes
+    ----------
+    freq_hz, damping_ratio : ndarray, shape (n_modes,)
+    freq_se_hz, damping_se : ndarray, shape (n_modes,)
+        Jackknife standard errors.
+    freq_interval_hz, damping_interval : ndarray, shape (n_modes, 2)
+        ``level`` intervals (Student's t, ``n_segments - 1`` degrees of freedom).
+    directions : ndarray, shape (n_modes, 3)
+        Real unit directions in the machine frame (zero on axes not recorded).
+    shapes : ndarray of complex, shape (3, n_modes)
+        Complex shapes in the signal's unit (zero rows for axes not recorded).
+    support : ndarray, shape (n_modes,)
+        Fraction of model orders with a stable pole in the mode's cluster.
+    harmonics : tuple of ResponseHarmonics
+        One per record.
+    direction_se_rad : ndarray, shape (n_modes,)
+        Jackknife spread of the direction, rad (angle from the full-record direction).
+    rejected_hz : ndarray
+        Stable clusters taken for milling lines, Hz.
+    band_hz : (float, float)
+    n_segments : int
+    level : float
+    warnings : tuple of str
+    """
+
+    freq_hz: np.ndarray
+    damping_ratio: np.ndarray
+    freq_se_hz: np.ndarray
+    damping_se: np.ndarray
+    freq_interval_hz: np.ndarray
+    damping_interval: np.ndarray
+    directions: np.ndarray
+    shapes: np.ndarray = field(repr=False)
+    support: np.ndarray = field(repr=False)
+    harmonics: tuple = field(repr=False)
+    direction_se_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    rejected_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    band_hz: tuple = (0.0, 0.0)
+    n_segments: int = 0
+    level: float = 0.95
+    warnings: tuple = ()
+
+    def __post_init__(self):
+        for name in ("freq_hz", "damping_ratio", "freq_se_hz", "damping_se", "freq_interval_hz",
+                     "damping_interval", "directions", "support", "rejected_hz", "direction_se_rad"):
+            object.__setattr__(self, name, _ro(getattr(self, name)))
+        object.__setattr__(self, "shapes", _ro(self.shapes, complex))
+        object.__setattr__(self, "harmonics", tuple(self.harmonics))
+        object.__setattr__(self, "warnings", tuple(self.warnings))
+
+    @property
+    def n_modes(self) -> int:
+        return int(self.freq_hz.size)
+
+    def plot(self, ax=None, **kwargs):
+        """Damping against frequency with intervals and the milling lines
+        (:func:`oma.output_only.plots.plot_output_only_modes`)."""
+        from .plots import plot_output_only_modes
+
+        return plot_output_only_modes(self, ax=ax, **kwargs)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "modes": [
+                {"natural_frequency_hz": float(f), "damping_ratio": float(z), "direction": [float(v) for v in u],
+                 "frequency_interval_hz": [float(v) for v in fi], "damping_interval": [float(v) for v in zi],
+                 "frequency_standard_error_hz": float(fs), "damping_standard_error": float(zs),
+                 "direction_standard_error_deg": float(np.degrees(d)), "support": float(s)}
+                for f, z, u, fi, zi, fs, zs, s, d in zip(self.freq_hz, self.damping_ratio, self.directions,
+                                                         self.freq_interval_hz, self.damping_interval,
+                                                         self.freq_se_hz, self.damping_se, self.support,
+                                                         self.direction_se_rad)
+            ],
+            "interval_level": self.level,
+            "band_hz": [float(b) for b in self.band_hz],
+            "harmonics": [h.to_dict() for h in self.harmonics],
+            "rejected_as_harmonics_hz": [float(f) for f in self.rejected_hz],
+        }
+
+
+def output_only_modes(signals, *args, **kwargs) -> "OutputOnlyModes":
+    with single_threaded_blas():
+        return _output_only_modes(signals, *args, **kwargs)
+
+
+def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, band_hz=(4.0, 100.0),
+                      band_ratio: float | None = None, cycles: float = 2.0, lag_s: float | None = 0.12, max_order: int = 60, n_segments: int = 10, level: float = 0.95,
+                      refine_harmonics: bool = True, integrate: int = 0,
+                       fdd_directions: bool = False, alias_up_to: float = 0.5) -> OutputOnlyModes:
+    """Modes, with jackknife intervals, from one or more response records of one pose.
+
+    Parameters
+    ----------
+    signals : sequence of array_like, each shape (3, n_samples)
+        Response along X, Y, Z (NaN rows for axes not recorded; the same axes in every record),
+        one quantity (displacement, velocity or acceleration) throughout.
+    sample_rate_hz : float
+    spindle_rpm : sequence of float or None
+        Nominal spindle speed of each record (None: no milling lines removed).
+    teeth : sequence of int
+    band_hz : (float, float)
+        Analysis band; the signals are decimated to about 2.5 times its upper end.
+    band_ratio : float, optional
+        None (default): the band is analysed in one piece. Given: in sub-bands ``[lo, lo r)``, ``[lo r, lo r^2)`` ... (the last up to
+        the band's top), each filtered and decimated to itself (with a 25 % margin on both sides)
+        and only its own modes kept, so that a weak low mode is not drowned in a strong high one.
+        Experimental: on the benchmark records its low sub-band lost modes in 6 records of 10.
+    cycles : float
+        With ``lag_s=None``: the correlation lags of a (sub-)band span this many periods of its
+        lowest frequency.
+    lag_s : float, optional
+        Time span of the correlation lags (block rows ``= lag_s * fs_decimated``); 0.12 s was the
+        best of 0.06-0.4 s on the benchmark records (modes of 10-25 Hz).
+    max_order : int
+        Largest SSI model order.
+    n_segments : int
+        Segments of the jackknife (over all records together).
+    level : float
+        Coverage of the intervals.
+    refine_harmonics : bool
+        Refine each spindle frequency from the response.
+    integrate : {0, 1, 2}
+        Integrate the residual this many times before SSI (frequency domain, high-pass at the
+        band's lower end).
+    alias_up_to : float
+        Spindle multiples up to this many times the sampling rate are removed where they fold
+        into the band (:func:`remove_response_harmonics`); 0.5 (default): none.
+    fdd_directions : bool
+        Directions from the singular vectors of the output spectral matrix over each mode's
+        half-power band (frequency-domain decomposition, Brincker, Zhang & Andersen 2001), the
+        one most like the SSI shape; SSI tilts the directions of close modes (10.0 / 10.5 Hz)
+        by up to 20 degrees, which the scaling turns into stiffness errors of 100 %.
+    """
+    signals = [np.array(s, dtype=float, ndmin=2) for s in signals]
+    fs = float(sample_rate_hz)
+    axes = ~np.all(np.isnan(signals[0]), axis=1)
+    warnings: list[str] = []
+    harmonics: list[ResponseHarmonics] = []
+    residuals = []
+    for s, rpm, z in zip(signals, spindle_rpm, teeth):
+        rh = remove_response_harmonics(s[axes], fs, rpm, int(z), refine=refine_harmonics, alias_up_to=alias_up_to)
+        harmonics.append(rh)
+        res = rh.residual
+        if integrate:
+            res = integrate_frequency_domain(res, fs, order=integrate, highpass_hz=band_hz[0])
+        residuals.append(res)
+    lo, hi = float(band_hz[0]), float(min(band_hz[1], 0.45 * fs))
+    edges = [lo]
+    while band_ratio is not None and edges[-1] * band_ratio < hi / 1.2:
+        edges.append(edges[-1] * band_ratio)
+    edges.append(hi)
+    parts = [_band_modes(residuals, fs, edges[k], edges[k + 1], first=k == 0, last=k == len(edges) - 2,
+                         cycles=cycles, lag_s=lag_s, max_order=max_order,
+                         n_segments=n_segments) for k in range(len(edges) - 1)]
+    f_all = np.concatenate([p[0] for p in parts])
+    z_all = np.concatenate([p[1] for p in parts])
+    shapes_all = np.hstack([p[2] for p in parts])
+    sup_all = np.concatenate([p[3] for p in parts])
+    fse_all = np.concatenate([p[4] for p in parts])
+    zse_all = np.concatenate([p[5] for p in parts])
+    n_seg = min(p[6] for p in parts)
+    band = (lo, hi)
+    use_all = np.concatenate([p[7] for p in parts])
+    sel = StabilisedModes(f_all, z_all, shapes_all, sup_all, tuple(range(f_all.size)))
+    order_ = np.argsort(f_all)
+    fse_all, zse_all, use_all = fse_all[order_], zse_all[order_], use_all[order_]
+    keep = np.ones(sel.n_modes, dtype=bool)
+    lines = np.concatenate([h.freq_hz for h in harmonics]) if harmonics else np.zeros(0)
+    for k in range(sel.n_modes):
+        if lines.size and np.min(np.abs(lines / sel.freq_hz[k] - 1.0)) < HARMONIC_TOLERANCE \
+                and sel.damping_ratio[k] < HARMONIC_MAX_DAMPING:
+            keep[k] = False
+    # duplicates: two clusters of one mode (same frequency within 2 %, MAC > 0.9): keep the better supported
+    order = np.argsort(-sel.support)
+    for a_i, a in enumerate(order):
+        if not keep[a]:
+            continue
+        for b in order[a_i + 1:]:
+            if keep[b] and abs(sel.freq_hz[b] / sel.freq_hz[a] - 1.0) < 0.02 \
+                    and mac(sel.shapes[:, a:a + 1], sel.shapes[:, b:b + 1])[0, 0] > 0.9:
+                keep[b] = False
+    rejected = sel.freq_hz[~keep]
+    f_hat, z_hat, shapes, support = sel.freq_hz[keep], sel.damping_ratio[keep], sel.shapes[:, keep], sel.support[keep]
+    f_se, z_se, u_se = fse_all[keep], zse_all[keep], use_all[keep]
+    if n_seg < 3:
+        warnings.append("record too short for the segment jackknife: no intervals")
+    if fdd_directions and f_hat.size:
+        shapes = _fdd_shapes(residuals, fs, f_hat, z_hat, shapes)
+    full_shapes = np.zeros((3, f_hat.size), dtype=complex)
+    full_shapes[axes] = shapes
+    directions = np.array([real_direction(full_shapes[:, k]) for k in range(f_hat.size)]).reshape(-1, 3)
+    return OutputOnlyModes(
+        freq_hz=f_hat, damping_ratio=z_hat, freq_se_hz=f_se, damping_se=z_se,
+        freq_interval_hz=t_interval(f_hat, f_se, n_seg, level), damping_interval=t_interval(z_hat, z_se, n_seg, level),
+        directions=directions, shapes=full_shapes, support=support, harmonics=tuple(harmonics),
+        direction_se_rad=u_se, rejected_hz=rejected, band_hz=band, n_segments=n_seg, level=level, warnings=tuple(warnings),
+    )
+
+
+def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float = 2.0):
+    """Singular vectors of the averaged spectral matrix over each mode's half-power band."""
+    nper = int(min(min(r.shape[1] for r in residuals), 2 ** np.round(np.log2(segment_s * fs))))
+    l = residuals[0].shape[0]
+    g = 0.0
+    for r in residuals:
+        f, p = sps.csd(r[:, None, :], r[None, :, :], fs=fs, nperseg=nper, axis=-1)
+        g = g + p
+    out = np.array(ssi_shapes, dtype=complex)
+    for k, (fr, zr) in enumerate(zip(freq_hz, damping)):
+        sel = np.abs(f - fr) <= max(zr * fr, f[1] - f[0])
+        if not np.any(sel):
+            continue
+        u, sv, _ = np.linalg.svd(np.mean(g[:, :, sel], axis=-1))
+        j = int(np.argmax(mac(u, ssi_shapes[:, k:k + 1])[:, 0]))
+        out[:, k] = u[:, j] * np.linalg.norm(ssi_shapes[:, k])
+    return out.reshape(l, -1)
+
+
+def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order, n_segments):
+    """SSI-cov modes with jackknife errors in ``[lo, hi)`` (see :func:`output_only_modes`)."""
+    f_pass = (0.8 * lo, min(1.25 * hi, 0.45 * fs))
+    q = max(int(np.floor(fs / (4.0 * f_pass[1]))), 1)
+    fsd = fs / q
+    if first:
+        sos = sps.butter(4, f_pass[1], btype="lowpass", fs=fs, output="sos")
+    else:
+        sos = sps.butter(4, f_pass, btype="bandpass", fs=fs, output="sos")
+    dec = [sps.sosfiltfilt(sos, r, axis=-1)[:, ::q] for r in residuals]
+    scale = np.sqrt(np.sum([np.sum(d ** 2, axis=1) for d in dec], axis=0) / sum(d.shape[1] for d in dec))
+    scale = np.where(scale > 0, scale, 1.0)
+    block_rows = int(np.clip(np.ceil(cycles * fsd / max(lo, 1e-3) if lag_s is None else lag_s * fsd), 4, 200))
+    n_lag = 2 * block_rows
+    total = sum(d.shape[1] for d in dec)
+    seg_corr, seg_w = [], []
+    for d in dec:
+        n_here = max(int(round(n_segments * d.shape[1] / total)), 1)
+        bounds = segment_bounds(d.shape[1], n_here)
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if b - a < 2:
+                continue
+            seg_corr.append(segment_correlations(d / scale[:, None], a, b, n_lag))
+            seg_w.append(b - a)
+    if not seg_corr:
+        raise ValueError(f"records too short for output-only identification: segments of at least "
+                         f"{n_lag / fsd:.2f} s are needed for modes down to {lo:g} Hz")
+    seg_corr = np.array(seg_corr)
+    seg_w = np.array(seg_w, dtype=float)
+    corr = np.tensordot(seg_w / seg_w.sum(), seg_corr, axes=1)
+    opts = dict(block_rows=block_rows, max_order=max_order, band_hz=(f_pass[0], min(f_pass[1], 0.45 * fsd)))
+    sel = select_modes(ssi_poles(corr, fsd, **opts))
+    own = (sel.freq_hz >= lo) & ((sel.freq_hz < hi) | last)
+    f_hat, z_hat, shapes, support = sel.freq_hz[own], sel.damping_ratio[own], sel.shapes[:, own], sel.support[own]
+    n_seg = len(seg_w)
+    rep_f = np.full((n_seg, f_hat.size), np.nan)
+    rep_z = np.full((n_seg, f_hat.size), np.nan)
+    rep_u = np.full((n_seg, f_hat.size), np.nan)
+    if f_hat.size and n_seg >= 3:
+        for b in range(n_seg):
+            w = seg_w.copy()
+            w[b] = 0.0
+            c = np.tensordot(w / w.sum(), seg_corr, axes=1)
+            rep_f[b], rep_z[b], phi = match_modes(ssi_poles(c, fsd, **opts), f_hat, shapes)
+            for k in range(f_hat.size):
+                if np.all(np.isfinite(phi[:, k])):
+                    cosine = abs(real_direction(phi[:, k] * scale) @ real_direction(shapes[:, k] * scale))
+                    rep_u[b, k] = np.arccos(min(cosine, 1.0))
+    _, f_se = jackknife(rep_f)
+    _, z_se = jackknife(rep_z)
+    # angle of each replicate's direction from the full estimate's, its jackknife spread (rad)
+    u_se = np.array([np.sqrt((np.sum(np.isfinite(a)) - 1) / max(np.sum(np.isfinite(a)), 1) * np.nansum(a ** 2))
+                     if np.sum(np.isfinite(a)) >= 3 else np.nan for a in rep_u.T])
+    return f_hat, z_hat, shapes * scale[:, None], support, f_se, z_se, n_seg, u_se
