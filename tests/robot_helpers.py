@@ -39,10 +39,10 @@ def shared_dir() -> Path:
     clear message when it is missing."""
     env = os.environ.get("ROBOMILL_SHARED")
     path = Path(env) if env else REPO.parent / "shared"
-    if not (path / "data" / "robots").is_dir():
+    if not (path / "data").is_dir():
         raise FileNotFoundError(
-            f"the shared data directory {path} (with data/robots/*.urdf) is missing: clone the repository "
-            "with shared/ beside it, or set ROBOMILL_SHARED to its location")
+            f"the shared data directory {path} (with data/, the real robots and recordings) is missing: clone "
+            "the repository with shared/ beside it, or set ROBOMILL_SHARED to its location")
     return path
 
 

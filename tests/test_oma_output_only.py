@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 import pytest
+from robot_helpers import shared_dir
 
 from oma.errors import RecordError
 from oma.modal import ModalModel
@@ -18,7 +19,6 @@ from oma.output_only.harmonics import remove_response_harmonics
 from oma.output_only.identify import compare_models, identify_output_only
 from oma.output_only.modes import output_only_modes, real_direction
 from oma.output_only.scaling import scale_modes, tooth_force_harmonics
-from oma.output_only.shared import shared_dir
 from oma.output_only.ssi import output_correlations, segment_correlations, select_modes, ssi_poles
 from oma.output_only.uncertainty import jackknife, t_interval, whittle_bound
 from oma.record import Channel, Record
@@ -225,13 +225,6 @@ def test_cli_output_only_json_with_force_comparison(tmp_path, capsys):
     assert all(s["coefficient_relative_sd"] == 0 for s in measured["stiffness_uncertainty"])
 
 
-def test_shared_dir_follows_the_environment(monkeypatch, tmp_path):
-    monkeypatch.setenv("ROBOMILL_SHARED", str(tmp_path))
-    assert shared_dir() == tmp_path
-    monkeypatch.delenv("ROBOMILL_SHARED")
-    assert shared_dir().name == "shared"
-
-
 def test_whittle_bound_tends_to_the_small_damping_closed_form():
     sd_f, sd_z = whittle_bound(10.0, 0.05, 20.0)
     assert np.isclose(sd_f, np.sqrt(0.05 / (2 * np.pi * 10.0 * 20.0)), rtol=0.01)
@@ -246,8 +239,6 @@ def test_real_hurco_accelerations_identified_but_not_trusted_without_coefficient
     from planner.diagnosis.hurco import read_hurco_csv
 
     path = shared_dir() / "data" / "milling-vibration-hurco" / "EBI_F20IN_T50_D0p05IN_4000RPM.csv"
-    if not path.exists():
-        pytest.skip(f"{path} not found (set ROBOMILL_SHARED)")
     h = read_hurco_csv(path)
     n = int(8.0 * h.sample_rate_hz)
     acc = np.asarray(h.acceleration_m_s2)[:, n // 4: n // 4 + n]
