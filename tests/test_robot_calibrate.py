@@ -107,6 +107,22 @@ def test_reach_correction_is_recovered_and_helps_held_out_poses(truth, tmp_path)
     assert errors[True] < 0.5 * errors[False]
 
 
+def test_spindle_modes_in_the_identified_models_are_left_out(truth):
+    # identified models that also hold a 650 Hz spindle mode: it pairs with no robot mode, the
+    # robot's joints come out as without it, and a warning says so
+    rng = np.random.default_rng(14)
+    q_cal = region_poses(truth, 4, rng)
+    plain = identified_models(truth, q_cal, np.random.default_rng(15))
+    spindle = ModalModel([650.0], [0.03], [3e7], [[1.0, 0, 0]])
+    from oma.modal import in_series
+
+    with_spindle = [in_series(m, spindle) for m in plain]
+    a = calibrate(_start(truth), plain, correction=False, n_candidates=20)
+    b = calibrate(_start(truth), with_spindle, correction=False, n_candidates=20)
+    np.testing.assert_allclose(b.joint_stiffness_N_m_rad, a.joint_stiffness_N_m_rad, rtol=1e-6)
+    assert any("4 identified mode(s) outside the robot modes' band" in w for w in b.warnings)
+
+
 def test_trust_region(same_class):
     cal, _ = same_class
     poses = np.radians(cal.robot.calibration["poses_deg"])
@@ -116,6 +132,17 @@ def test_trust_region(same_class):
     verdict = trust(cal.robot, far)
     assert not verdict.trusted and verdict.outside_joints == (2,)
     assert "outside the calibrated region: joint(s) 2" in verdict.warnings[0]
+    # vectorised: the same verdicts and uncertainties at many poses at once
+    from planner.robot import trust_poses
+
+    many = np.vstack([poses, far])
+    trusted, sd, outside = trust_poses(cal.robot, many)
+    for i, qi in enumerate(many):
+        one = trust(cal.robot, qi)
+        assert trusted[i] == one.trusted and sd[i] == pytest.approx(one.frequency_sd, rel=1e-9)
+    assert outside[-1].tolist() == [False, True, False, False, False, False]
+    # the propagated uncertainty is small at the calibration poses (about the noise / sqrt(poses))
+    assert np.all(sd[:-1] < 0.02)
 
 
 def test_bad_input(truth):
@@ -125,3 +152,23 @@ def test_bad_input(truth):
     outside = ModalModel([8.0], [0.05], [1e6], [[1.0, 0, 0]], joints_deg=[0, 20, 90, 0, 45, 0])
     with pytest.raises(InputError, match=r"p.yaml: pose.joints_deg: expected joint 2 \(joint_2\) within"):
         calibrate(truth, [outside], names=["p.yaml"])
+
+
+def test_calibration_plot(same_class, tmp_path):
+    import matplotlib.pyplot as plt
+
+    cal, _ = same_class
+    fig, axes = cal.plot()
+    assert len(axes) == 2 and axes[0].get_yscale() == "log"
+    assert len(axes[1].patches) == len(cal.leave_one_out)
+    fig.savefig(tmp_path / "cal.png")
+    plt.close(fig)
+
+
+def test_importing_the_robot_package_does_not_import_matplotlib():
+    import subprocess
+    import sys
+
+    code = "import sys, planner.robot, planner.robot.cli; print('matplotlib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -86,7 +86,13 @@ def test_robot_option_on_lobes_and_predict_equals_the_written_model(calibrated, 
     assert json.loads(by_robot) == json.loads(by_model)
     code, out, err = _run(capsys, "predict", setup, "--robot", calibrated, "--joints-deg", *POSE, "--rpm", "2000",
                           "--depth", "0.001", "--json")
-    assert code == 0, err and "stable" in json.loads(out)
+    assert code == 0, err
+    assert "stable" in json.loads(out) and "trusted: false" not in err
+    far = ["0", "-125", "100", "0", "50", "0"]
+    code, out, err = _run(capsys, "predict", setup, "--robot", calibrated, "--joints-deg", *far, "--rpm", "2000",
+                          "--depth", "0.001", "--json")
+    assert code == 0 and "stable" in json.loads(out)  # answered, with a warning on stderr
+    assert "pose outside the calibrated region" in err and "(trusted: false)" in err
 
 
 @pytest.mark.parametrize("case", ["no_pose", "pose_outside", "bad_urdf", "no_stiffness", "outside_limits",

@@ -83,6 +83,10 @@ def test_vectorised_modes_equal_one_by_one(robot):
     many = robot_modes(robot, q)
     for i in range(4):
         one = robot_modes(robot, q[i])
+        model = many.model(i)
+        np.testing.assert_allclose(model.joints_deg, np.degrees(q[i]))
+        np.testing.assert_allclose(model.receptance([5.0, 20.0]), robot_modal_model(robot, q[i]).receptance([5.0, 20.0]),
+                                   rtol=1e-9)
         np.testing.assert_allclose(many.frequency_hz[i], one.frequency_hz[0], rtol=1e-12)
         np.testing.assert_allclose(many.stiffness_N_m[i], one.stiffness_N_m[0], rtol=1e-9)
 

@@ -164,3 +164,24 @@ def test_bad_robot_file_fields(tmp_path, old, new, message):
     robot_file.write_text(robot_file.read_text().replace(old, new, 1))
     with pytest.raises(RobotError, match=re.escape(str(robot_file)) + ": " + message):
         read_robot(robot_file)
+
+
+def test_same_tool_described_on_the_kuka_flange_frame(robot, tmp_path):
+    # KUKA's `flange` frame has x out of the flange where `tool0` has z: the same physical tool,
+    # described on `flange` (tip along x, axis -x, inertia permuted), gives the same tool tip, tool
+    # axis, Jacobian and mass matrix; its rotation reference falls back to the flange y axis.
+    text = write_robot_file(tmp_path).read_text()
+    text = (text.replace("flange_link: tool0", "flange_link: flange")
+            .replace("tip_m: [0.0, 0.0, 0.45]", "tip_m: [0.45, 0.0, 0.0]")
+            .replace("axis: [0.0, 0.0, -1.0]", "axis: [-1.0, 0.0, 0.0]")
+            .replace("center_of_mass_m: [0.0, 0.0, 0.20]", "center_of_mass_m: [0.20, 0.0, 0.0]")
+            .replace("[[4.0, 0, 0], [0, 4.0, 0], [0, 0, 1.5]]", "[[1.5, 0, 0], [0, 4.0, 0], [0, 0, 4.0]]"))
+    (tmp_path / "flange.yaml").write_text(text)
+    other = read_robot(tmp_path / "flange.yaml")
+    q = random_poses(robot, 10, seed=9)
+    np.testing.assert_allclose(forward_kinematics(other, q)[:, :3, 3], forward_kinematics(robot, q)[:, :3, 3],
+                               atol=1e-12)
+    np.testing.assert_allclose(tool_axis(other, q), tool_axis(robot, q), atol=1e-12)
+    np.testing.assert_allclose(tip_jacobian(other, q), tip_jacobian(robot, q), atol=1e-12)
+    np.testing.assert_allclose(mass_matrix(other, q), mass_matrix(robot, q), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(other.tool.reference_axis, [0, 1, 0])

@@ -4,18 +4,38 @@ Layers, one idea per module: :mod:`.description` (what the robot is: ``robomill-
 frozen), :mod:`.kinematics` (forward kinematics, tool-tip Jacobian), :mod:`.dynamics` (mass matrix,
 eigenproblem, tool-tip modal model), :mod:`.ik` (closed-form inverse kinematics, every branch),
 :mod:`.correction` (the reach correction of the rigid-link model), :mod:`.calibrate` (joint
-stiffness and damping from identified poses, trust), :mod:`.cli` (``robomill robot ...``).
-All functions are vectorised over poses: ``q`` in rad, shape ``(n, 6)`` or ``(6,)``.
+stiffness and damping from identified poses, trust), :mod:`.plots`, :mod:`.cli` (``robomill robot
+...``). All functions are vectorised over poses: ``q`` in rad, shape ``(n, 6)`` or ``(6,)``.
+
+The names below are imported lazily (on first use), so that ``robomill --help``, which builds
+the ``--robot`` options, does not pay for numba and scipy.
 """
 
-from .calibrate import Calibration, Trust, calibrate, trust
-from .description import Robot, RobotError, ToolBody, read_robot, write_robot
-from .dynamics import RobotModes, mass_matrix, robot_modal_model, robot_modes
-from .ik import (IKSolutions, PathIK, continuous_branch, inverse_kinematics, joint_limit_distance, singularity_measure,
-                 tool_rotation)
-from .kinematics import forward_kinematics, tip_jacobian, tool_axis
+from __future__ import annotations
 
-__all__ = ["Robot", "RobotError", "ToolBody", "read_robot", "write_robot", "forward_kinematics", "tip_jacobian",
-           "tool_axis", "mass_matrix", "robot_modes", "RobotModes", "robot_modal_model", "inverse_kinematics",
-           "IKSolutions", "PathIK", "continuous_branch", "singularity_measure", "joint_limit_distance", "tool_rotation",
-           "calibrate", "Calibration", "trust", "Trust"]
+import importlib
+
+_NAMES = {
+    "description": ("Robot", "RobotError", "ToolBody", "read_robot", "write_robot"),
+    "kinematics": ("forward_kinematics", "tip_jacobian", "tool_axis"),
+    "dynamics": ("mass_matrix", "robot_modes", "RobotModes", "robot_modal_model"),
+    "ik": ("inverse_kinematics", "IKSolutions", "PathIK", "continuous_branch", "singularity_measure",
+           "joint_limit_distance", "tool_rotation"),
+    "calibrate": ("calibrate", "Calibration", "trust", "trust_poses", "Trust"),
+}
+_MODULE_OF = {name: module for module, names in _NAMES.items() for name in names}
+
+__all__ = [name for names in _NAMES.values() for name in names]
+
+
+def __getattr__(name):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module 'planner.robot' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -52,8 +52,10 @@ from .correction import CORRECTION_JOINTS, correction_factor, reach_m
 from .description import KR500_JOINT_STIFFNESS_N_M_RAD, Robot
 from .dynamics import mass_matrix, robot_modes
 
-__all__ = ["Calibration", "calibrate", "trust", "Trust", "parse_correction", "TRUST_JOINTS"]
+__all__ = ["Calibration", "calibrate", "trust", "trust_poses", "Trust", "parse_correction", "TRUST_JOINTS"]
 
+#: Identified modes beyond the predicted tool-tip modes' band widened by this factor are not paired.
+_BAND_FACTOR = 3.0
 #: Joints (0-based) whose values decide the trust region (2-5 in the 1-based numbering).
 TRUST_JOINTS = (1, 2, 3, 4)
 
@@ -77,15 +79,20 @@ def _modes(robot, theta, data, r_ref):
 
 
 def _match(modes, data, *, min_fraction=1e-3):
-    """Pairs (measured mode, predicted mode) per model."""
+    """Pairs (measured mode, predicted mode) per model. Identified modes outside the band of the
+    predicted tool-tip modes widened by a factor 3 (e.g. a spindle mode hundreds of Hz up) pair
+    with nothing."""
     pairs = []
     compliance = modes.compliance_m_N
     for i, model in enumerate(data.models):
         cand = np.flatnonzero(compliance[i] >= min_fraction * compliance[i].max())
-        mac = (model.directions @ modes.directions[i, cand].T) ** 2
-        cost = (1 - mac) + np.abs(np.log(modes.frequency_hz[i, cand][None, :] / model.natural_frequency_hz[:, None]))
+        f_c = modes.frequency_hz[i, cand]
+        inside = np.flatnonzero((model.natural_frequency_hz >= f_c.min() / _BAND_FACTOR)
+                                & (model.natural_frequency_hz <= f_c.max() * _BAND_FACTOR))
+        mac = (model.directions[inside] @ modes.directions[i, cand].T) ** 2
+        cost = (1 - mac) + np.abs(np.log(f_c[None, :] / model.natural_frequency_hz[inside, None]))
         rows, cols = linear_sum_assignment(cost)
-        pairs.append((rows, cand[cols]))
+        pairs.append((inside[rows], cand[cols]))
     return pairs
 
 
@@ -156,6 +163,10 @@ def _model_errors(robot, theta, data, pairs, r_ref):
     f_err, k_err = [], []
     for i, (rows, cols) in enumerate(pairs):
         m = data.models[i]
+        if len(rows) == 0:
+            f_err.append(math.inf)
+            k_err.append(math.inf)
+            continue
         f_err.append(float(np.sqrt(np.mean((modes.frequency_hz[i, cols] / m.natural_frequency_hz[rows] - 1) ** 2))))
         k_err.append(float(np.sqrt(np.mean((modes.stiffness_N_m[i, cols] / m.stiffness_N_m[rows] - 1) ** 2))))
     return np.array(f_err), np.array(k_err)
@@ -210,6 +221,12 @@ class Calibration:
     start_scale: float = 1.0
     model_names: tuple = ()
     warnings: tuple = field(default_factory=tuple)
+
+    def plot(self, ax=None):
+        """Stiffness with its uncertainty and the leave-one-out errors (:func:`.plots.plot_calibration`)."""
+        from .plots import plot_calibration
+
+        return plot_calibration(self, ax=ax)
 
     def to_dict(self) -> dict:
         return {"joint_stiffness_N_m_rad": self.joint_stiffness_N_m_rad.tolist(),
@@ -399,6 +416,10 @@ def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str
     corr = ({"kind": "reach", "gamma": float(theta[6]), "reference_reach_m": r_ref, "joints": list(CORRECTION_JOINTS)}
             if use else None)
     f_err, k_err = _model_errors(robot, theta, data, pairs, r_ref)
+    unpaired = sum(m.n_modes - len(rows) for m, (rows, _) in zip(models, pairs))
+    if unpaired:
+        warnings.append(f"{unpaired} identified mode(s) outside the robot modes' band (widened by a factor "
+                        f"{_BAND_FACTOR:g}) or beyond their number (e.g. spindle/tool modes): left out of the calibration")
     # next pose
     rng = np.random.default_rng(seed)
     cand = _sample_region(robot, q, n_candidates, rng)
@@ -468,31 +489,54 @@ class Trust:
                 "warnings": list(self.warnings)}
 
 
-def trust(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: float = 10.0) -> Trust:
-    """Decide whether the calibrated model's prediction at ``q`` (rad, (6,)) is trusted (see the
-    module docstring)."""
+def trust_poses(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: float = 10.0):
+    """The trust rule (module docstring) at many poses ``q`` (rad, (n, 6)), vectorised.
+
+    Returns
+    -------
+    trusted : ndarray of bool, shape (n,)
+    frequency_sd : ndarray, shape (n,)
+        Propagated relative one-sigma of the dominant mode's frequency (inf without a calibration
+        record).
+    outside : ndarray of bool, shape (n, 6)
+        Joints (of 2-5) outside the calibration poses' range widened by ``trust_margin_deg``.
+    """
+    q = np.atleast_2d(np.asarray(q, float))
+    n = q.shape[0]
     cal = robot.calibration or {}
     if "poses_deg" not in cal or "covariance" not in cal:
-        return Trust(False, math.inf, (), ("the robot was not calibrated by robomill (no calibration record): "
-                                           "the model's accuracy is unknown",))
-    q = np.asarray(q, float).reshape(6)
+        return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 6), bool)
     poses = np.radians(np.asarray(cal["poses_deg"], float))
     margin = math.radians(trust_margin_deg)
     lo, hi = poses.min(axis=0) - margin, poses.max(axis=0) + margin
-    outside = tuple(j + 1 for j in TRUST_JOINTS if not lo[j] <= q[j] <= hi[j])
+    outside = np.zeros((n, 6), bool)
+    idx = list(TRUST_JOINTS)
+    outside[:, idx] = (q[:, idx] < lo[idx]) | (q[:, idx] > hi[idx])
     theta = np.asarray(cal["parameters"], float)
     cov = np.asarray(cal["covariance"], float)
     r_ref = float(cal.get("reference_reach_m", 1.0))
-    g, _ = _log_f_dominant_gradient(robot.with_joints(correction=None), theta, q[None], r_ref)
-    sd = float(np.sqrt(g[0] @ cov @ g[0]))
+    g, _ = _log_f_dominant_gradient(robot, theta, q, r_ref)
+    sd = np.sqrt(np.einsum("ni,ij,nj->n", g, cov, g))
+    return ~outside.any(axis=1) & (sd <= trust_sd), sd, outside
+
+
+def trust(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: float = 10.0) -> Trust:
+    """Decide whether the calibrated model's prediction at ``q`` (rad, (6,)) is trusted (see the
+    module docstring), with the reasons as warnings."""
+    if "covariance" not in (robot.calibration or {}):
+        return Trust(False, math.inf, (), ("the robot was not calibrated by robomill (no calibration record): "
+                                           "the model's accuracy is unknown",))
+    trusted, sd, outside = trust_poses(robot, np.asarray(q, float).reshape(1, 6), trust_sd=trust_sd,
+                                       trust_margin_deg=trust_margin_deg)
+    joints = tuple(int(j) + 1 for j in np.flatnonzero(outside[0]))
     warnings = []
-    if outside:
-        warnings.append("pose outside the calibrated region: joint(s) " + ", ".join(map(str, outside)) +
+    if joints:
+        warnings.append("pose outside the calibrated region: joint(s) " + ", ".join(map(str, joints)) +
                         f" beyond the calibration poses' range +- {trust_margin_deg:g} deg")
-    if sd > trust_sd:
-        warnings.append(f"the dominant mode's frequency is uncertain here ({100 * sd:.1f} % one-sigma, more than "
+    if sd[0] > trust_sd:
+        warnings.append(f"the dominant mode's frequency is uncertain here ({100 * sd[0]:.1f} % one-sigma, more than "
                         f"{100 * trust_sd:g} %)")
-    return Trust(not outside and sd <= trust_sd, sd, outside, tuple(warnings))
+    return Trust(bool(trusted[0]), float(sd[0]), joints, tuple(warnings))
 
 
 def parse_correction(mapping: dict, root) -> dict:

@@ -135,6 +135,8 @@ class RobotModes:
         Mass-normalised joint-space mode shapes, ``shapes[:, :, r]`` is mode ``r``.
     tip_motion : ndarray, shape (n, 6, 3)
         ``J_v phi_r``, m per unit modal coordinate.
+    joints_rad : ndarray, shape (n, 6), optional
+        The poses.
     """
 
     frequency_hz: np.ndarray
@@ -143,10 +145,29 @@ class RobotModes:
     directions: np.ndarray
     shapes: np.ndarray
     tip_motion: np.ndarray
+    joints_rad: np.ndarray | None = None
 
     def __post_init__(self):
         for name in ("frequency_hz", "damping_ratio", "stiffness_N_m", "directions", "shapes", "tip_motion"):
             object.__setattr__(self, name, _ro(np.asarray(getattr(self, name))))
+        if self.joints_rad is not None:
+            object.__setattr__(self, "joints_rad", _ro(self.joints_rad))
+
+    @property
+    def n_poses(self) -> int:
+        return int(self.frequency_hz.shape[0])
+
+    def model(self, i: int, *, min_tip_fraction: float = 1e-9, source: dict | None = None) -> ModalModel:
+        """The tool-tip :class:`~oma.modal.ModalModel` at pose ``i`` (``joints_deg`` filled when
+        the poses are known); modes whose tip compliance is below ``min_tip_fraction`` of the
+        largest are left out (they do not move the tool tip)."""
+        compliance = self.compliance_m_N[i]
+        keep = compliance >= min_tip_fraction * compliance.max()
+        return ModalModel(natural_frequency_hz=self.frequency_hz[i, keep],
+                          damping_ratio=np.maximum(self.damping_ratio[i, keep], 1e-6),
+                          stiffness_N_m=self.stiffness_N_m[i, keep], directions=self.directions[i, keep],
+                          joints_deg=None if self.joints_rad is None else np.degrees(self.joints_rad[i]),
+                          source=source)
 
     @property
     def compliance_m_N(self) -> np.ndarray:
@@ -216,7 +237,7 @@ def robot_modes(robot: Robot, q, *, stiffness=None, masses=None) -> RobotModes:
         zeta = np.einsum("j,nj,njr->nr", robot.damping_ratio, k, phi**2) / omega**2
     else:
         zeta = np.zeros_like(omega)
-    return RobotModes(omega / (2 * np.pi), zeta, stiff, directions, phi, tip)
+    return RobotModes(omega / (2 * np.pi), zeta, stiff, directions, phi, tip, joints_rad=q)
 
 
 def damping_matrix(robot: Robot, q, *, stiffness=None) -> np.ndarray:
@@ -276,12 +297,8 @@ def robot_modal_model(robot: Robot, q, *, tool_model: ModalModel | None = None, 
     if check_limits:
         robot.check_joints(q)
     modes = robot_modes(robot, q, stiffness=stiffness)
-    compliance = modes.compliance_m_N[0]
-    keep = compliance >= min_tip_fraction * compliance.max()
-    model = ModalModel(natural_frequency_hz=modes.frequency_hz[0, keep],
-                       damping_ratio=np.maximum(modes.damping_ratio[0, keep], 1e-6),
-                       stiffness_N_m=modes.stiffness_N_m[0, keep], directions=modes.directions[0, keep],
-                       joints_deg=np.degrees(q), source={"method": "robot-model", "robot": robot.name or robot.file})
+    model = modes.model(0, min_tip_fraction=min_tip_fraction,
+                        source={"method": "robot-model", "robot": robot.name or robot.file})
     if tool_model is not None:
         model = in_series(model, tool_model, joints_deg=np.degrees(q), source=model.source)
     return model
