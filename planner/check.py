@@ -143,7 +143,9 @@ class ToolpathCheck:
     mean_torque_N_m : ndarray, shape (n_points,)
         Mean cutting torque over a revolution, N m (what ``limits.spindle_torque_N_m`` bounds).
     in_span : ndarray of bool, shape (n_points,)
-        The pose lies in the span of the identified poses (always True with one model).
+        The pose lies in the span of the identified poses (always True with one model); with a
+        robot: the pose is one the calibration covers (``robot calibrate``'s trust rule; True when
+        the robot has no calibration record, which a note says).
     nearest_stable_rpm : ndarray, shape (n_points,)
         At chatter violations: the nearest spindle speed at which the planned depth passes the
         chatter test (NaN if none in the range); NaN elsewhere.

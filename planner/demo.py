@@ -313,7 +313,7 @@ def _step_robot(example: Example, report: Report):
              f"toolpath): " + (", ".join(f"{v} {k}" for k, v in counts.items() if v) or "no violations")
              + f" (with the identified poses interpolated: {before_models.counts()['pose_out_of_range']} "
              "pose_out_of_range, which the robot model does not need).")
-    posture = choose_posture(robot, example.toolpath, tool_model=example.tool_mode)
+    posture = choose_posture(robot, example.toolpath, tool_model=example.tool_mode, stations=32)
     sec.text(f"Posture (rotation about the tool axis, one IK branch, smooth, within limits and away from "
              f"singularities): smallest stability margin {posture.min_margin_before:.3f} before, "
              f"{posture.min_margin_after:.3f} after; flange angle {np.nanmin(posture.flange_angle_deg):.0f} to "

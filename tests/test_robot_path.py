@@ -213,3 +213,24 @@ def test_lowest_mode_map_is_the_robot_model_at_the_ik_pose(cell):
     model = robot_modal_model(robot, np.radians(res.joints_deg[4]), min_tip_fraction=0.01)
     assert freq.shape == (1, 2) and np.all(np.isfinite(freq))
     assert freq[0, 0] == pytest.approx(model.natural_frequency_hz.min(), rel=1e-9)
+
+
+def test_trust_of_a_calibrated_robot_marks_poses_it_does_not_cover(cell):
+    """A robot calibrated at poses along one stretch of the path: points far from them are not
+    trusted (in_span false, a note), the ones at the calibration poses are."""
+    from planner.robot.calibrate import calibrate
+
+    _, robot, tp = cell
+    base = check_toolpath(tp, robot=robot, pose_resolution_deg=0)
+    assert base.in_span.all() and any("no calibration record" in n for n in base.notes)
+    poses = [robot_modal_model(robot, np.radians(base.joints_deg[i])) for i in (0, 1, 2)]
+    poses = [replace(m, joints_deg=base.joints_deg[i]) for m, i in zip(poses, (0, 1, 2))]
+    cal = calibrate(robot, poses).robot
+    # the last two points raised 0.4 m: joints 2 and 3 move far beyond the calibration poses' range
+    high = np.array(tp.positions_m)
+    high[-2:, 2] += 0.4
+    res = check_toolpath(replace(tp, positions_m=high), robot=cal, pose_resolution_deg=0)
+    moved = np.abs(res.joints_deg[-1, 1:3] - base.joints_deg[2, 1:3]).max()
+    assert moved > 10.0  # the trust rule's margin on joint ranges is 10 deg
+    assert res.in_span[0] and not res.in_span[-2:].any()
+    assert any("calibration does not cover" in n for n in res.notes)

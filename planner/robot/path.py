@@ -198,10 +198,11 @@ def _continuous(robot: Robot, q, ok):
     lo, hi = robot.lower_rad[wide], robot.upper_rad[wide]
     for k, j in enumerate(wide):
         shifts = 2 * math.pi * np.arange(-2, 3)
-        # inside the range first, then nearest the middle of the range
+        # inside the range first, then nearest the middle of the range; a tie (a run at +-180 deg
+        # around a middle of 0) goes to the larger turn, whatever the rounding noise of the mean
         mid = 0.5 * (lo[k] + hi[k])
         cost = [1e6 * np.sum(np.maximum(lo[k] - (un[:, k] + s), 0) + np.maximum(un[:, k] + s - hi[k], 0))
-                + abs(np.mean(un[:, k]) + s - mid) for s in shifts]
+                + round(abs(np.mean(un[:, k]) + s - mid), 9) - 1e-10 * s for s in shifts]
         un[:, k] += shifts[int(np.argmin(cost))]
     sub[:] = un
     out = q.copy()
@@ -276,7 +277,18 @@ def robot_point_models(robot: Robot, toolpath, *, tool_model=None, resolution_de
     if counts is not None:
         counts["robot_poses"] = int(first.size)
     ones = np.ones(n, dtype=bool)
-    models = _Models(fn, zeta, stiff, dirs, res, inverse, ones, ~ones, np.zeros(n), math.inf, math.inf)
+    trusted = ones.copy()
+    cal = robot.calibration or {}
+    if "poses_deg" in cal and "covariance" in cal:  # the trust rule of robot calibrate, at the distinct poses
+        from .calibrate import trust_poses
+
+        trusted = trust_poses(robot, np.radians(q_deg[first]))[0][inverse] & reach
+        if (~trusted & reach).any():
+            notes.append(f"{int((~trusted & reach).sum())} point(s) at poses the calibration does not cover "
+                         "(robot calibrate's trust rule): in_span false, their predictions are not trusted")
+    else:
+        notes.append("the robot has no calibration record: whether its poses are covered is not assessed")
+    models = _Models(fn, zeta, stiff, dirs, res, inverse, trusted, ~ones, np.zeros(n), math.inf, math.inf)
     extra = {
         "unreachable": (~reach, np.ones(n), 0.0),
         "joint_limit": (reach & ~pj.within_limits, np.nan_to_num(pj.limit_excess_deg), 0.0),
