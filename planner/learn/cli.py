@@ -7,10 +7,6 @@ prints.
 
 from __future__ import annotations
 
-import argparse
-
-import numpy as np
-
 from planner.cli_common import EXIT_OK, UsageError, add_json, emit, save_figure
 
 __all__ = ["add_parsers", "parse_prior_sd", "chance_constraint", "posterior_lobes"]
@@ -76,7 +72,7 @@ def _cmd_learn(args) -> int:
     from oma.modal_io import read_modal_model
     from stability.setup_io import read_setup
 
-    from .outcomes_io import read_cuts, write_cuts
+    from .outcomes_io import read_cuts
     from .posterior_io import write_posterior_model
     from .predictive import predict_cuts, probability_lobes
     from .suggest import suggest_cuts

@@ -12,7 +12,7 @@ from stability.setup import Limits, Setup
 
 from .likelihood import CHATTER, STABLE
 from .outcomes_io import CutTable
-from .tables import method_for, reference_limits
+from .tables import reference_limits
 
 __all__ = ["Problem", "tool_problem", "true_limits", "random_cuts", "label"]
 
