@@ -319,6 +319,45 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, s
     return np.nan
 
 
+def _k_branches(f_lo, f_hi, fn, zeta, stiff, w, wres, freq, dep, pha, gap, valid):
+    """Sample the two eigenvalue branches of one structure group on the log chatter-frequency grid
+    ``f_lo .. f_hi`` (``freq.shape[0]`` lines), continued in frequency, into the work arrays:
+    ``freq``, limit depth ``dep`` and phase ``pha`` (in turns) per branch (``inf``/NaN where the
+    real part is not positive), the branch gap ``gap`` and ``valid`` (both ends of a segment
+    finite). Shared by :func:`_k_scan` and the atlas kernel (``planner.atlas._kernel``)."""
+    n_freq = freq.shape[0]
+    a = math.log(f_lo)
+    step = (math.log(f_hi) - a) / (n_freq - 1)
+    for i in range(n_freq):
+        freq[i] = math.exp(i * step + a)
+    freq[0], freq[n_freq - 1] = f_lo, f_hi
+    swapped = False
+    prev = 0j
+    for i in range(n_freq):
+        l1, l2 = _k_lam(freq[i], fn, zeta, stiff, w, wres)
+        # continue the branches: the sorted gap l1 - l2 turning by more than 90 degrees from
+        # the previous frequency's means the sorted order has swapped (stability.zoa's rule)
+        d12 = l1 - l2
+        if i > 0 and (prev.conjugate() * d12).real < 0.0:
+            swapped = not swapped
+        prev = d12
+        if swapped:
+            l1, l2 = l2, l1
+        gap[i] = l1 - l2
+        # the phase is used only where the depth is finite (atan2 is a fifth of the cost)
+        dep[0, i], pha[0, i] = np.inf, np.nan
+        dep[1, i], pha[1, i] = np.inf, np.nan
+        if l1.real > 0.0:
+            d, p = _k_depth_phase(l1)
+            dep[0, i], pha[0, i] = d, p / _TWO_PI
+        if l2.real > 0.0:
+            d, p = _k_depth_phase(l2)
+            dep[1, i], pha[1, i] = d, p / _TWO_PI
+    for b in range(2):
+        for i in range(n_freq - 1):
+            valid[b, i] = dep[b, i] < np.inf and dep[b, i + 1] < np.inf
+
+
 def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q_thr, q_lo, q_hi, q_near,
             out_depth, out_freq, out_near):
     """For every structure group: sample both branches on the log frequency grid of
@@ -332,36 +371,7 @@ def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q
     valid = np.empty((2, n_freq - 1), dtype=np.bool_)
     for g in range(fn.shape[0]):
         fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
-        a = math.log(f_lo[g])
-        step = (math.log(f_hi[g]) - a) / (n_freq - 1)
-        for i in range(n_freq):
-            freq[i] = math.exp(i * step + a)
-        freq[0], freq[n_freq - 1] = f_lo[g], f_hi[g]
-        swapped = False
-        prev = 0j
-        for i in range(n_freq):
-            l1, l2 = _k_lam(freq[i], fn_g, zeta_g, stiff_g, w_g, wres_g)
-            # continue the branches: the sorted gap l1 - l2 turning by more than 90 degrees from
-            # the previous frequency's means the sorted order has swapped (stability.zoa's rule)
-            d12 = l1 - l2
-            if i > 0 and (prev.conjugate() * d12).real < 0.0:
-                swapped = not swapped
-            prev = d12
-            if swapped:
-                l1, l2 = l2, l1
-            gap[i] = l1 - l2
-            # the phase is used only where the depth is finite (atan2 is a fifth of the cost)
-            dep[0, i], pha[0, i] = np.inf, np.nan
-            dep[1, i], pha[1, i] = np.inf, np.nan
-            if l1.real > 0.0:
-                d, p = _k_depth_phase(l1)
-                dep[0, i], pha[0, i] = d, p / _TWO_PI
-            if l2.real > 0.0:
-                d, p = _k_depth_phase(l2)
-                dep[1, i], pha[1, i] = d, p / _TWO_PI
-        for b in range(2):
-            for i in range(n_freq - 1):
-                valid[b, i] = dep[b, i] < np.inf and dep[b, i + 1] < np.inf
+        _k_branches(f_lo[g], f_hi[g], fn_g, zeta_g, stiff_g, w_g, wres_g, freq, dep, pha, gap, valid)
         for q in range(q_ptr[g], q_ptr[g + 1]):
             d, fc = _k_limit(q_rpm[q], teeth, freq, dep, pha, gap, valid, fn_g, zeta_g, stiff_g, w_g, wres_g)
             out_depth[q], out_freq[q] = d, fc
@@ -371,7 +381,7 @@ def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q
                                          fn_g, zeta_g, stiff_g, w_g, wres_g)
 
 
-_KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_limit", "_k_crossing",
+_KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branches", "_k_branch", "_k_solve", "_k_limit", "_k_crossing",
                  "_k_unstable_intervals", "_k_nearest", "_k_scan")
 _PY_KERNELS = {name: globals()[name] for name in _KERNEL_NAMES}
 _COMPILED: list = []

@@ -4,7 +4,7 @@ stable operating point on it, and the exact ZOA limit there.
 For one structure (a pose's tool-tip modes seen in the cut frame) the two eigenvalue branches of
 ``G_or(f) B0`` are sampled on the log chatter-frequency grid of
 :func:`stability.zoa.default_chatter_frequencies` and continued in frequency exactly as
-:mod:`stability.zoa_batch` does (its compiled ``_k_lam``, ``_k_limit`` are reused). The lobe
+:mod:`stability.zoa_batch` does (its compiled ``_k_branches``, ``_k_limit`` are reused). The lobe
 ``k`` of branch ``b`` maps a grid interval ``[f_i, f_i+1]`` to the speeds
 ``n_k(f) = 60 f / (N (eps(f) / 2 pi + k))``; every speed of the grid that falls in that image gets
 the depth interpolated linearly in speed (the candidate depth of ``zoa_batch._k_limit``), and the
@@ -25,10 +25,8 @@ import numpy as np
 
 __all__ = ["atlas_kernel"]
 
-_TWO_PI = 2.0 * math.pi
-
 #: The compiled helpers of :mod:`stability.zoa_batch`, bound by :func:`atlas_kernel` before compiling.
-_k_lam = _k_depth_phase = _k_limit = None
+_k_branches = _k_limit = None
 
 
 def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_hi, hi_code, c_pow, margin,
@@ -57,33 +55,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
     keep_env = out_env.shape[0] > 0
     for g in range(fn.shape[0]):
         fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
-        a = math.log(f_lo[g])
-        step = (math.log(f_hi[g]) - a) / (n_freq - 1)
-        for i in range(n_freq):
-            freq[i] = math.exp(i * step + a)
-        freq[0], freq[n_freq - 1] = f_lo[g], f_hi[g]
-        swapped = False
-        prev = 0j
-        for i in range(n_freq):
-            l1, l2 = _k_lam(freq[i], fn_g, zeta_g, stiff_g, w_g, wres_g)
-            d12 = l1 - l2
-            if i > 0 and (prev.conjugate() * d12).real < 0.0:
-                swapped = not swapped
-            prev = d12
-            if swapped:
-                l1, l2 = l2, l1
-            gap[i] = l1 - l2
-            dep[0, i], pha[0, i] = np.inf, np.nan
-            dep[1, i], pha[1, i] = np.inf, np.nan
-            if l1.real > 0.0:
-                d, p = _k_depth_phase(l1)
-                dep[0, i], pha[0, i] = d, p / _TWO_PI
-            if l2.real > 0.0:
-                d, p = _k_depth_phase(l2)
-                dep[1, i], pha[1, i] = d, p / _TWO_PI
-        for b in range(2):
-            for i in range(n_freq - 1):
-                valid[b, i] = dep[b, i] < np.inf and dep[b, i + 1] < np.inf
+        _k_branches(f_lo[g], f_hi[g], fn_g, zeta_g, stiff_g, w_g, wres_g, freq, dep, pha, gap, valid)
         # ---- the envelope on the speed grid
         for j in range(n_rpm):
             env[j] = np.inf
@@ -171,6 +143,6 @@ def atlas_kernel():
 
         zoa_batch.scan_kernel()  # binds the compiled helpers in zoa_batch's namespace
         g = globals()
-        g["_k_lam"], g["_k_depth_phase"], g["_k_limit"] = zoa_batch._k_lam, zoa_batch._k_depth_phase, zoa_batch._k_limit
+        g["_k_branches"], g["_k_limit"] = zoa_batch._k_branches, zoa_batch._k_limit
         _COMPILED.append(numba.njit(cache=True)(_a_scan))
     return _COMPILED[0]
