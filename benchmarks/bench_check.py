@@ -42,7 +42,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -53,6 +52,9 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _timing import median_time  # noqa: E402
 
 from oma.cutting import Cut  # noqa: E402
 from oma.modal_io import read_modal_model  # noqa: E402
@@ -153,16 +155,6 @@ def robot_case(base: Toolpath, n_sub: int, repeats: int):
             elapsed, cpu, per_point * path.n_points, err_lim, err_sle, float("nan"), len(result.violations))
 
 
-def median_time(fn, repeats: int):
-    """Median wall time and median CPU time of this process (the CPU time is what the run costs
-    without the other users of the shared machine), s, and the last result."""
-    wall, cpu, out = [], [], None
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        out = fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return statistics.median(wall), statistics.median(cpu), out
 
 
 def main(argv=None) -> int:

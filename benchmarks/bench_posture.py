@@ -29,7 +29,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -40,6 +39,9 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _timing import median_time  # noqa: E402
 
 from oma.modal_io import read_modal_model  # noqa: E402
 from planner.robot import read_robot  # noqa: E402
@@ -83,14 +85,6 @@ def offset_cell(base, n, directory):
     return read_robot(path), tp
 
 
-def timed(fn, repeats):
-    wall, cpu, out = [], [], None
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        out = fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return statistics.median(wall), statistics.median(cpu), out
 
 
 def main(argv=None) -> int:
@@ -117,7 +111,7 @@ def main(argv=None) -> int:
         brute_cpu = time.process_time() - c0
         best, worst = float(np.max(sweep)), float(np.min(sweep[np.isfinite(sweep)]))
         for stations in (64,) if args.quick else (64, 200):
-            wall, cpu, res = timed(lambda: choose_posture(robot, path, tool_model=tool, stations=stations), repeats)
+            wall, cpu, res = median_time(lambda: choose_posture(robot, path, tool_model=tool, stations=stations), repeats)
             print(f"{cell} | {stations} | {res.rotation_deg.size} x {res.rotations_deg.size} | {wall:.1f} | {cpu:.1f} | "
                   f"{res.min_margin_before:.4f} | {res.min_margin_after:.4f} | {res.min_margin_after / best:.4f} | "
                   f"{best / worst:.3f} | {len(res.unreachable)} | {res.evaluations.get('margin_evaluations')} | "
