@@ -801,7 +801,8 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
         found["power"] = power > limits.spindle_power_W
     if limits.spindle_torque_N_m is not None:
         found["torque"] = mean_torque > limits.spindle_torque_N_m
-    found["pose_out_of_range"] = ~pm.in_span
+    if robot is None:  # with a robot, in_span is the calibration's trust: a note, not a violation
+        found["pose_out_of_range"] = ~pm.in_span
     violations = []
     for i in np.flatnonzero(np.any(np.stack(list(found.values())), axis=0)):
         i = int(i)

@@ -233,4 +233,5 @@ def test_trust_of_a_calibrated_robot_marks_poses_it_does_not_cover(cell):
     moved = np.abs(res.joints_deg[-1, 1:3] - base.joints_deg[2, 1:3]).max()
     assert moved > 10.0  # the trust rule's margin on joint ranges is 10 deg
     assert res.in_span[0] and not res.in_span[-2:].any()
+    assert set(res.counts()) == set(ROBOT_KINDS)  # untrusted is a note, not a violation kind
     assert any("calibration does not cover" in n for n in res.notes)
