@@ -143,6 +143,11 @@ def test_trust_region(same_class):
     assert outside[-1].tolist() == [False, True, False, False, False, False]
     # the propagated uncertainty is small at the calibration poses (about the noise / sqrt(poses))
     assert np.all(sd[:-1] < 0.02)
+    # a joint's range is an arc: the same angle a full turn away is the same pose (a wrist at
+    # +180 deg and at -180 deg), so the verdict and the uncertainty do not change
+    turned = poses[0] + np.radians([360.0, 0.0, 0.0, -360.0, 0.0, 360.0])
+    assert trust(cal.robot, turned).trusted
+    assert trust(cal.robot, turned).frequency_sd == pytest.approx(trust(cal.robot, poses[0]).frequency_sd, rel=1e-9)
 
 
 def test_bad_input(truth):

@@ -489,6 +489,11 @@ class Trust:
                 "warnings": list(self.warnings)}
 
 
+def _wrap(angle_rad):
+    """Angles in [-pi, pi)."""
+    return np.mod(np.asarray(angle_rad, float) + np.pi, 2.0 * np.pi) - np.pi
+
+
 def trust_poses(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: float = 10.0):
     """The trust rule (module docstring) at many poses ``q`` (rad, (n, 6)), vectorised.
 
@@ -508,10 +513,16 @@ def trust_poses(robot: Robot, q, *, trust_sd: float = 0.05, trust_margin_deg: fl
         return np.zeros(n, bool), np.full(n, np.inf), np.zeros((n, 6), bool)
     poses = np.radians(np.asarray(cal["poses_deg"], float))
     margin = math.radians(trust_margin_deg)
-    lo, hi = poses.min(axis=0) - margin, poses.max(axis=0) + margin
+    # the range of each joint is an arc: angles 2 pi apart are the same pose for the dynamics, so
+    # the poses and the query are measured from the poses' circular mean (a wrist at +180 deg and
+    # one at -180 deg are the same joint angle)
+    centre = np.angle(np.mean(np.exp(1j * poses), axis=0))
+    spread = _wrap(poses - centre)
+    lo, hi = spread.min(axis=0) - margin, spread.max(axis=0) + margin
+    offset = _wrap(q - centre)
     outside = np.zeros((n, 6), bool)
     idx = list(TRUST_JOINTS)
-    outside[:, idx] = (q[:, idx] < lo[idx]) | (q[:, idx] > hi[idx])
+    outside[:, idx] = (offset[:, idx] < lo[idx]) | (offset[:, idx] > hi[idx])
     theta = np.asarray(cal["parameters"], float)
     cov = np.asarray(cal["covariance"], float)
     r_ref = float(cal.get("reference_reach_m", 1.0))
