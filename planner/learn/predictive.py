@@ -11,7 +11,7 @@ from oma._arrays import readonly
 
 from .outcomes_io import CutTable
 from .posterior import Posterior
-from .tables import Grid, LimitTable, build_table
+from .tables import FINE_NODES, Grid, LimitTable, build_table
 
 __all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "ChanceLimit"]
 
@@ -22,7 +22,8 @@ def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
     u = posterior.samples
     sd = posterior.prior_log_sd
     bounds = Grid.around(float(sd[0]), float(sd[2]), float(np.hypot(sd[3], sd[4])), span=4.0)
-    return Grid.covering(u[:, 0], u[:, 2], u[:, 4] - u[:, 3], bounds=bounds, step=step, max_zeta=3, max_ratio=2)
+    return Grid.covering(u[:, 0], u[:, 2], u[:, 4] - u[:, 3], bounds=bounds, step=step, max_zeta=FINE_NODES[0],
+                         max_ratio=FINE_NODES[1])
 
 
 def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: str | None,
