@@ -186,6 +186,8 @@ def suggest_vs_grid(seed, max_cuts, log):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seed-list", type=int, nargs="+", default=None,
+                    help="these seeds instead of 0..seeds-1 (split a run over processes)")
     ap.add_argument("--quick", action="store_true", help="3 seeds, 20 cuts, 1 suggest seed")
     ap.add_argument("--sizes", type=int, nargs="+", default=[15, 30])
     ap.add_argument("--held", type=int, default=60)
@@ -200,7 +202,7 @@ def main(argv=None):
     log = lambda s: print(s, flush=True)  # noqa: E731
     rows = []
     t_all = time.perf_counter()
-    for seed in range(args.seeds):
+    for seed in (args.seed_list if args.seed_list else range(args.seeds)):
         if time.perf_counter() - t_all > args.budget_s:
             log(f"budget reached: {len(rows)} seeds done")
             break

@@ -11,18 +11,20 @@ from oma._arrays import readonly
 
 from .outcomes_io import CutTable
 from .posterior import Posterior
-from .tables import Grid, LimitTable, build_table
+from .tables import FINE_NODES, Grid, LimitTable, build_table
 
 __all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "ChanceLimit"]
 
 
 def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
-    """Table nodes covering the posterior samples (2 sds beyond the extremes; at most 3 damping
-    and 2 ratio nodes: the posterior is narrower than the prior these were sized for)."""
+    """Table nodes covering the posterior samples (2 sds beyond the extremes; at most
+    ``FINE_NODES`` damping and ratio nodes, as the fine table of ``learn``: fewer put the limit
+    off by up to x2.4 when those posteriors stay wide, docs/learn.md)."""
     u = posterior.samples
     sd = posterior.prior_log_sd
     bounds = Grid.around(float(sd[0]), float(sd[2]), float(np.hypot(sd[3], sd[4])), span=4.0)
-    return Grid.covering(u[:, 0], u[:, 2], u[:, 4] - u[:, 3], bounds=bounds, step=step, max_zeta=3, max_ratio=2)
+    return Grid.covering(u[:, 0], u[:, 2], u[:, 4] - u[:, 3], bounds=bounds, step=step, max_zeta=FINE_NODES[0],
+                         max_ratio=FINE_NODES[1])
 
 
 def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: str | None,

@@ -37,6 +37,11 @@ __all__ = ["Grid", "LimitTable", "build_table", "reference_limits", "MAX_DEPTH_M
 MAX_DEPTH_M = 1.0  # a limit above this (or none) counts as this: no test cut is that deep
 SDM_BELOW_IMMERSION = 0.2  # ae/D below which the SDM is used (as `plan --method auto`)
 SDM_STEPS_PER_MODE_PERIOD, SDM_MIN_STEPS = 20.0, 40  # about 0.5 % from converged (bench_learn)
+# Most damping and Krc/Ktc nodes of a fine (posterior-covering) table, and of the coarse first stage.
+# The posterior of both is weakly pinned, so the tables span most of the prior (+-3 sds: damping x0.24..4,
+# ratio x0.35..2.8) and the log limit is far from linear over that: 3 x 2 nodes (the first version) put
+# the limit at the TRUE parameters off by up to a factor 2.4 at half and full immersion (docs/learn.md).
+FINE_NODES, COARSE_NODES = (5, 4), (4, 3)
 
 
 @dataclass(frozen=True)

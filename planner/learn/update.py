@@ -13,7 +13,7 @@ from oma.modal import ModalModel
 from .likelihood import CHATTER, STABLE, Likelihood
 from .outcomes_io import CutTable
 from .posterior import PARAMETERS, Posterior, PriorSD, smc
-from .tables import Grid, LimitTable, build_table
+from .tables import COARSE_NODES, FINE_NODES, Grid, LimitTable, build_table
 
 __all__ = ["LearnResult", "learn", "table_for", "loo_probability_stable"]
 
@@ -46,12 +46,12 @@ class LearnResult:
 
 def grid_for(prior_log_sd: np.ndarray, *, coarse: bool = False) -> Grid:
     """Table nodes over +-3 prior sds (the ratio's log-sd from the two coefficients'); ``coarse``:
-    the first stage's (speed step 0.03, 3 damping and 2 ratio nodes, SDM at 10 steps per mode
+    the first stage's (speed step 0.03, ``COARSE_NODES`` damping and ratio nodes, SDM at 10 steps per mode
     period)."""
     sd_ratio = float(np.hypot(prior_log_sd[3], prior_log_sd[4]))
     if coarse:
-        return Grid.around(float(prior_log_sd[0]), float(prior_log_sd[2]), sd_ratio, step=0.03, n_zeta=3,
-                           n_ratio=2, sdm_steps=(10.0, 20))
+        return Grid.around(float(prior_log_sd[0]), float(prior_log_sd[2]), sd_ratio, step=0.03, n_zeta=COARSE_NODES[0],
+                           n_ratio=COARSE_NODES[1], sdm_steps=(10.0, 20))
     return Grid.around(float(prior_log_sd[0]), float(prior_log_sd[2]), sd_ratio)
 
 
@@ -140,7 +140,8 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         u0 = full(res0.samples)
         stages.append(time.perf_counter() - t0)
         table = table_for(prior, setup, cuts, Grid.covering(u0[:, 0], u0[:, 2], u0[:, 4] - u0[:, 3],
-                                                            bounds=grid_for(sd), max_zeta=3, max_ratio=2),
+                                                            bounds=grid_for(sd), max_zeta=FINE_NODES[0],
+                                                            max_ratio=FINE_NODES[1]),
                           method=method)
     t1 = time.perf_counter()
     res = smc(lambda x: terms(full(x), table)[0].sum(axis=1), sd[active], rng=rng, n_particles=n_particles)
