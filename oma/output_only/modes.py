@@ -33,6 +33,8 @@ __all__ = ["OutputOnlyModes", "output_only_modes", "real_direction"]
 #: :data:`HARMONIC_MAX_DAMPING` is taken for the line.
 HARMONIC_TOLERANCE = 0.005
 HARMONIC_MAX_DAMPING = 0.01
+#: See ``ml_refine`` in :func:`output_only_modes`.
+ML_MAX_SHIFT = 2.0
 
 
 def real_direction(shape) -> np.ndarray:
@@ -186,7 +188,9 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         Refine frequency, damping and direction of the SSI modes (number and rough place fixed)
         by maximising the Whittle likelihood of the output periodogram matrix around them
         (:func:`oma.output_only.ml.refine_modes_ml`); the jackknife then re-runs this refinement
-        per deleted segment, so the intervals belong to the refined estimate.
+        per deleted segment, so the intervals belong to the refined estimate. A refined frequency
+        more than :data:`ML_MAX_SHIFT` SSI standard errors from SSI's is taken for a misfit (one
+        SSI mode for two true ones) and SSI's values are kept.
     ml_directions : bool
         Report the refinement's directions too (default: SSI's; on the benchmark records the
         refined directions did not scale the close X / Z pair better).
@@ -250,7 +254,12 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         shapes = _fdd_shapes(residuals, fs, f_hat, z_hat, shapes)
     if ml_refine and f_hat.size:
         f_hat, z_hat, ml_shapes, ses = _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments)
-        fitted = f_hat != sel.freq_hz[keep]     # a group whose fit failed keeps SSI's values and errors
+        f_ssi, z_ssi = sel.freq_hz[keep], sel.damping_ratio[keep]
+        # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is
+        # taken for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept
+        moved = np.abs(f_hat - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
+        f_hat, z_hat = np.where(moved, f_ssi, f_hat), np.where(moved, z_ssi, z_hat)
+        fitted = f_hat != f_ssi     # a group whose fit failed keeps SSI's values and errors
         if ses is not None:
             f_se, z_se = (np.where(fitted, new, old) for new, old in zip(ses[:2], (f_se, z_se)))
         if ml_directions:
