@@ -151,7 +151,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         if v is None or not v > 0:
             warnings.append(f"{r.name or 'record'}: no spindle speed; milling harmonics not removed")
     modes = output_only_modes(signals, fs, rpm, teeth, band_hz=band_hz, n_segments=n_segments, level=level,
-                              refine_harmonics=refine_harmonics, **mode_options)
+                              refine_harmonics=refine_harmonics,
+                              **{"derivative": MOTION_QUANTITIES.index(quantity), **mode_options})
     warnings += list(modes.warnings)
     if modes.rejected_hz.size:
         warnings.append("stable poles at milling lines taken for harmonics, not modes: "
