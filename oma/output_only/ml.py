@@ -19,6 +19,8 @@ The bins within 0.1 Hz of a regressed milling line are left out (the regression 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.optimize import minimize
 
@@ -29,18 +31,36 @@ def _tril(n):
     return np.tril_indices(n)
 
 
-def _unpack(p, m, l, ref):
+class _Params(NamedTuple):
+    """The decoded parameter vector: frequencies ``f`` (m,), damping ``z`` (m,), unit directions
+    ``u`` (m, l) and the norms ``norm`` (m,) of their raw vectors, the Cholesky factors ``lc`` (m, m)
+    and ``ln`` (l, l) of the input covariance ``c`` and the noise covariance ``n``, and the index
+    sets ``tm``, ``tl`` of those factors' free entries."""
+
+    f: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+    norm: np.ndarray
+    lc: np.ndarray
+    ln: np.ndarray
+    c: np.ndarray
+    n: np.ndarray
+    tm: tuple
+    tl: tuple
+
+
+def _unpack(p, m, l, ref) -> _Params:
+    """Decode ``p``: ``f0 (1 + zeta0 p_f)``, ``exp(p_z)``, raw directions, the two Cholesky factors."""
     f0, z0 = ref
     i = 0
     f = f0 * (1.0 + z0 * p[i:i + m]); i += m
     z = np.exp(p[i:i + m]); i += m
-    u = p[i:i + m * l].reshape(m, l); i += m * l
-    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
-    tm = _tril(m)
+    vraw = p[i:i + m * l].reshape(m, l); i += m * l
+    norm = np.maximum(np.linalg.norm(vraw, axis=1), 1e-300)
+    tm, tl = _tril(m), _tril(l)
     lc = np.zeros((m, m)); lc[tm] = p[i:i + tm[0].size]; i += tm[0].size
-    tl = _tril(l)
     ln = np.zeros((l, l)); ln[tl] = p[i:i + tl[0].size]
-    return f, z, u, lc @ lc.T, ln @ ln.T
+    return _Params(f, z, vraw / norm[:, None], norm, lc, ln, lc @ lc.T, ln @ ln.T, tm, tl)
 
 
 def _response(f, z, z0, w):
@@ -51,7 +71,7 @@ def _response(f, z, z0, w):
 
 
 def _spectrum(p, m, l, w, gain, ref):
-    f, z, u, c, n = _unpack(p, m, l, ref)
+    f, z, u, _, _, _, c, n, _, _ = _unpack(p, m, l, ref)
     d = _response(f, z, ref[1], w)   # (K, m)
     v = u.T[None, :, :] / d[:, None, :]                                                    # (K, l, m)
     s = gain[:, None, None] * np.einsum("kar,rs,kbs->kab", v, c, v.conj())
@@ -61,19 +81,9 @@ def _spectrum(p, m, l, w, gain, ref):
 def _nll(p, m, l, w, gain, x, ref):
     """Whittle negative log-likelihood and its gradient (analytic) in the parameters ``p``."""
     f0, z0 = ref
-    i = 0
-    f = f0 * (1.0 + z0 * p[:m])
-    z = np.exp(p[m:2 * m])
-    vraw = p[2 * m:2 * m + m * l].reshape(m, l)
-    norm = np.maximum(np.linalg.norm(vraw, axis=1), 1e-300)
-    u = vraw / norm[:, None]
-    i = 2 * m + m * l
-    tm, tl = _tril(m), _tril(l)
-    lc = np.zeros((m, m)); lc[tm] = p[i:i + tm[0].size]; i += tm[0].size
-    ln = np.zeros((l, l)); ln[tl] = p[i:i + tl[0].size]
-    c, n = lc @ lc.T, ln @ ln.T
+    f, z, u, norm, lc, ln, c, n, tm, tl = _unpack(p, m, l, ref)
     q = w[:, None] / (2 * np.pi * f[None, :])
-    d = (1.0 - q ** 2 + 2j * z[None, :] * q) / (2 * z0[None, :])          # (K, m)
+    d = _response(f, z, z0, w)                                             # (K, m)
     v = u.T[None, :, :] / d[:, None, :]                                    # (K, l, m)
     s = gain[:, None, None] * (v @ c @ np.conj(np.swapaxes(v, 1, 2))) + n[None]
     try:
@@ -111,18 +121,9 @@ def _nll(p, m, l, w, gain, x, ref):
 def _fisher(p, m, l, w, gain, ref):
     """Fisher information of the Whittle likelihood, ``J_ij = Re sum_k tr(S^-1 dS_i S^-1 dS_j)``."""
     f0, z0 = ref
-    f = f0 * (1.0 + z0 * p[:m])
-    z = np.exp(p[m:2 * m])
-    vraw = p[2 * m:2 * m + m * l].reshape(m, l)
-    norm = np.maximum(np.linalg.norm(vraw, axis=1), 1e-300)
-    u = vraw / norm[:, None]
-    i = 2 * m + m * l
-    tm, tl = _tril(m), _tril(l)
-    lc = np.zeros((m, m)); lc[tm] = p[i:i + tm[0].size]; i += tm[0].size
-    ln = np.zeros((l, l)); ln[tl] = p[i:i + tl[0].size]
-    c, n = lc @ lc.T, ln @ ln.T
+    f, z, u, norm, lc, ln, c, n, tm, tl = _unpack(p, m, l, ref)
     q = w[:, None] / (2 * np.pi * f[None, :])
-    d = (1.0 - q ** 2 + 2j * z[None, :] * q) / (2 * z0[None, :])
+    d = _response(f, z, z0, w)
     v = u.T[None, :, :] / d[:, None, :]
     vh = np.conj(np.swapaxes(v, 1, 2))
     s = gain[:, None, None] * (v @ c @ vh) + n[None]
@@ -305,7 +306,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             res = minimize(_nll, p0, args=(m, l, w, gain, x, ref), jac=True, method="L-BFGS-B",
                            options={"maxiter": max_iter, "ftol": ftol})
             px, fun = _scoring(res.x, m, l, w, gain, x, ref)
-        f, z, u, _, _ = _unpack(px, m, l, ref)
+        f, z, u = _unpack(px, m, l, ref)[:3]
         if not np.all(np.isfinite(px)) or np.any(np.abs(f - f0[g]) > hw[g] / 2) or np.any(z > 0.5) \
                 or fun > _nll(p0, m, l, w, gain, x, ref)[0]:
             continue
