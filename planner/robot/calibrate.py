@@ -266,21 +266,26 @@ def _sample_region(robot, q, n, rng):
     return np.clip(out, robot.lower_rad + 1e-3, robot.upper_rad - 1e-3)
 
 
+def _central_difference(fn, theta, step):
+    """``d fn / d theta_j`` for every ``j`` by central differences, stacked on a last axis."""
+    cols = []
+    for j in range(theta.size):
+        plus, minus = theta.copy(), theta.copy()
+        plus[j] += step
+        minus[j] -= step
+        cols.append((fn(plus) - fn(minus)) / (2 * step))
+    return np.stack(cols, axis=-1)
+
+
 def _log_f_dominant_gradient(robot, theta, q, r_ref, step=1e-5):
     """``d ln f_dominant / d theta`` at poses ``q`` (n, p) by central differences."""
     data = _Data(q=q, masses=mass_matrix(robot, q), reach=reach_m(robot, q), models=())
-    base = _modes(robot, theta, data, r_ref)
-    dom = base.dominant()
-    grads = []
-    for j in range(theta.size):
-        f = []
-        for sgn in (1, -1):
-            t = theta.copy()
-            t[j] += sgn * step
-            modes = _modes(robot, t, data, r_ref)
-            f.append(np.log(np.take_along_axis(modes.frequency_hz, dom[:, None], 1)[:, 0]))
-        grads.append((f[0] - f[1]) / (2 * step))
-    return np.array(grads).T, data
+    dom = _modes(robot, theta, data, r_ref).dominant()
+
+    def log_f(t):
+        return np.log(np.take_along_axis(_modes(robot, t, data, r_ref).frequency_hz, dom[:, None], 1)[:, 0])
+
+    return _central_difference(log_f, theta, step), data
 
 
 def _feature_jacobian(robot, theta, data, sig, r_ref, n_modes=3, step=1e-5):
@@ -288,17 +293,13 @@ def _feature_jacobian(robot, theta, data, sig, r_ref, n_modes=3, step=1e-5):
     shape (n, 2 n_modes, p)."""
     base = _modes(robot, theta, data, r_ref)
     order = np.argsort(-base.compliance_m_N, axis=1)[:, :n_modes]
-    out = []
-    for j in range(theta.size):
-        vals = []
-        for sgn in (1, -1):
-            t = theta.copy()
-            t[j] += sgn * step
-            m = _modes(robot, t, data, r_ref)
-            vals.append(np.concatenate([np.log(np.take_along_axis(m.frequency_hz, order, 1)) / sig[0],
-                                        np.log(np.take_along_axis(m.stiffness_N_m, order, 1)) / sig[1]], axis=1))
-        out.append((vals[0] - vals[1]) / (2 * step))
-    return np.stack(out, axis=-1)
+
+    def features(t):
+        m = _modes(robot, t, data, r_ref)
+        return np.concatenate([np.log(np.take_along_axis(m.frequency_hz, order, 1)) / sig[0],
+                               np.log(np.take_along_axis(m.stiffness_N_m, order, 1)) / sig[1]], axis=1)
+
+    return _central_difference(features, theta, step)
 
 
 def calibrate(robot: Robot, models: Sequence[ModalModel], *, names: Sequence[str] | None = None,
