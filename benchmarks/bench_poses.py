@@ -22,7 +22,6 @@ Prints four tables:
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import time
 import warnings
@@ -33,7 +32,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _timing import median_time  # noqa: E402
 from oma.modal_io import read_modal_model  # noqa: E402
 from planner.poses import PoseModels  # noqa: E402
 from planner.toolpath_io import read_toolpath  # noqa: E402
@@ -41,15 +42,6 @@ from test_poses import Q_A, TABLE, law_model, line, read_table, tip_modes  # noq
 
 N_POINTS = 100_000
 EXAMPLE = ROOT / "examples" / "kr500_acetal"
-
-
-def median_time(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def example_models():
@@ -80,7 +72,7 @@ def speed(repeats: int, naive_points: int) -> None:
                         ("example 6 poses, 1-D, distinct poses", pm1, distinct),
                         ("law 4x4 grid, 2-D, distinct poses", pm2, plane)):
         pm.evaluate(q[:10])  # warm-up
-        t_vec = median_time(lambda: pm.evaluate(q), repeats)
+        t_vec = median_time(lambda: pm.evaluate(q), repeats)[0]
         ev = pm.evaluate(q)
         sub = q[:: max(1, len(q) // naive_points)][:naive_points]
         t0 = time.perf_counter()

@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -39,7 +38,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _timing import median_time  # noqa: E402
 from planner.poses import PoseModels  # noqa: E402
 from planner.robot import forward_kinematics, mass_matrix, read_robot, robot_modes, tip_jacobian, tool_axis  # noqa: E402
 from planner.robot.calibrate import TRUST_JOINTS, calibrate  # noqa: E402
@@ -48,15 +49,6 @@ from planner.robot.ik import inverse_kinematics, tool_rotation  # noqa: E402
 from robot_helpers import identified_models, region_poses, write_robot_file  # noqa: E402
 
 DAMPING = [0.03, 0.06, 0.04, 0.05, 0.08, 0.05]
-
-
-def median_time(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def truth_robot(tmp: Path):
@@ -241,7 +233,7 @@ def ik_table(truth, repeats):
     a = tool_axis(truth, q)
     ref = rng.normal(size=(big, 3))
     inverse_kinematics(truth, t[:10, :3, 3], a[:10], 0.0, ref[:10])  # compile (numba cache)
-    sec = median_time(lambda: inverse_kinematics(truth, t[:, :3, 3], a, 0.3, ref), repeats)
+    sec = median_time(lambda: inverse_kinematics(truth, t[:, :3, 3], a, 0.3, ref), repeats)[0]
     print("\n3. Inverse kinematics (closed form, all 8 branches)")
     print(f"   round trip on {n} random targets: {sol.reachable.sum()} reachable branches, {sol.valid.sum()} within "
           f"limits; max position error {pos_err:.2e} m (target 1e-9), max rotation-matrix error {rot_err:.2e}")
@@ -255,7 +247,7 @@ def speed_table(truth, repeats):
     for name, fn in (("forward_kinematics", lambda: forward_kinematics(truth, q)),
                      ("tip_jacobian", lambda: tip_jacobian(truth, q)), ("mass_matrix", lambda: mass_matrix(truth, q)),
                      ("robot_modes", lambda: robot_modes(truth, q))):
-        print(f"   {name:>20}: {median_time(fn, repeats):.3f}")
+        print(f"   {name:>20}: {median_time(fn, repeats)[0]:.3f}")
 
 
 def main(argv=None):
