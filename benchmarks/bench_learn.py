@@ -25,6 +25,7 @@ Run: ``PYTHONPATH=. python benchmarks/bench_learn.py [--seeds 20] [--quick]``.
 from __future__ import annotations
 
 import argparse
+import pickle
 import time
 from dataclasses import replace
 
@@ -105,6 +106,8 @@ def run_seed(seed, sizes, base_sizes, n_held, log):
         cut = replace(prob.setup.cut, radial_depth_m=float(key[0]), milling="down" if key[1] else "up")
         prior_lim[rows] = reference_limits(prob.prior, prob.setup.tool, cut, prob.setup.material.cutting_coefficients,
                                            held.spindle_rpm[rows], method="sdm")
+    rr = np.geomspace(*RPM, 48)
+    boundary_truth = true_limits(prob, rr, np.full(rr.size, prob.setup.cut.radial_depth_m), np.ones(rr.size, bool))
     out = {"seed": seed, "u_prior_in_sd": (u / sd).round(2).tolist(), "acc_prior": acc((held.axial_depth_m < prior_lim) * 1.0, truth)}
     for n in sizes:
         t0 = time.perf_counter()
@@ -119,17 +122,16 @@ def run_seed(seed, sizes, base_sizes, n_held, log):
         out[f"cause_{n}"] = res.posterior.cause()
         out[f"loo_{n}"] = (res.accuracy_before, res.accuracy_after)
         out[f"warn_{n}"] = len(res.warnings)
+        out[f"p_held_{n}"], out["truth_held"] = p, truth
+        lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=48)
+        err = np.abs(lobes.quantiles[0.5] / boundary_truth - 1)
+        out[f"boundary_median_err_{n}"] = float(np.median(err))
+        out[f"boundary_within_10_{n}"] = float(np.mean(err < 0.10))
         if n == max(sizes):
-            out["p_held"], out["truth_held"] = p, truth
-            lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=48)
-            rr = lobes.rpm
-            tl = true_limits(prob, rr, np.full(rr.size, prob.setup.cut.radial_depth_m), np.ones(rr.size, bool))
-            err = np.abs(lobes.quantiles[0.5] / tl - 1)
-            out["boundary_median_err"] = float(np.median(err))
-            out["boundary_within_10"] = float(np.mean(err < 0.10))
             out["post"] = res
         log(f"  seed {seed} n={n}: prior {out['acc_prior']:.2f} post {out[f'acc_post_{n}']:.2f} "
-            f"learn {t_learn:.1f}s predict({held.n_cuts}) {t_pred:.1f}s cause {out[f'cause_{n}']}")
+            f"learn {t_learn:.1f}s predict({held.n_cuts}) {t_pred:.1f}s cause {out[f'cause_{n}']} "
+            f"boundary err {out[f'boundary_median_err_{n}']:.3f}")
     for n in base_sizes:
         tr = subset(pool, n)
         out[f"acc_logit_{n}"] = acc(logistic(tr, held, d), truth)
@@ -183,6 +185,50 @@ def suggest_vs_grid(seed, max_cuts, log):
     return grid_need, need
 
 
+def summary(rows, sizes, base_sizes, n_held, log):
+    """The tables of the README from per-seed rows (of one run, or of several saved runs)."""
+    med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
+    log("\n## held-out accuracy (median over %d seeds, %d held-out cuts each)" % (len(rows), n_held))
+    log("| training cuts | prior (nominal) | posterior | logistic | kNN (k=5) |")
+    log("|---|---|---|---|---|")
+    for n in base_sizes:
+        post = f"{med(f'acc_post_{n}'):.3f}" if n in sizes else "-"
+        log(f"| {n} | {med('acc_prior'):.3f} | {post} | {med(f'acc_logit_{n}'):.3f} | {med(f'acc_knn_{n}'):.3f} |")
+    for n in sizes:
+        share = np.mean([r[f"acc_post_{n}"] >= 0.9 for r in rows])
+        worse = sum(r[f"acc_post_{n}"] < r["acc_prior"] for r in rows)
+        log(f"posterior, {n} cuts: share of seeds >= 90 %: {share:.2f}; mean {np.mean([r[f'acc_post_{n}'] for r in rows]):.3f}; "
+            f"worse than the prior in {worse} of {len(rows)}")
+    for name in ("logit", "knn"):
+        need = [n for n in base_sizes if med(f"acc_{name}_{n}") >= 0.9]
+        log(f"{name}: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(base_sizes)}")
+    need = [n for n in sizes if med(f"acc_post_{n}") >= 0.9]
+    log(f"posterior: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(sizes)}")
+    log("\n## 50 % boundary vs the true (converged SDM) limit, production cut 0.5 D down")
+    for n in sizes:
+        if f"boundary_median_err_{n}" in rows[0]:
+            log(f"{n} cuts: median relative error {med(f'boundary_median_err_{n}'):.3f}; median share of speeds within "
+                f"10 %: {med(f'boundary_within_10_{n}'):.2f}")
+    for n in sizes:
+        if f"p_held_{n}" not in rows[0]:
+            continue
+        p = np.concatenate([r[f"p_held_{n}"] for r in rows])
+        t = np.concatenate([r["truth_held"] for r in rows])
+        log(f"\n## reliability, {n} cuts (held-out cuts pooled over seeds)")
+        log("| P(stable) bin | cuts | mean P | share stable |")
+        log("|---|---|---|---|")
+        edges = np.array([0, 0.05, 0.2, 0.4, 0.6, 0.8, 0.95, 1.0001])
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            sel = (p >= lo) & (p < hi)
+            if sel.any():
+                log(f"| {lo:.2f}-{min(hi, 1):.2f} | {sel.sum()} | {p[sel].mean():.3f} | {t[sel].mean():.3f} |")
+    for n in sizes:
+        log(f"learn {n} cuts: median {med(f'time_learn_{n}'):.1f} s (max {max(r[f'time_learn_{n}'] for r in rows):.1f}); "
+            f"predict {n_held} held-out cuts median {med(f'time_predict_{n}'):.1f} s")
+        causes = [r[f"cause_{n}"] for r in rows]
+        log(f"causes named ({n} cuts): " + ", ".join(f"{c}: {causes.count(c)}" for c in sorted(set(causes))))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
@@ -193,6 +239,9 @@ def main(argv=None):
     ap.add_argument("--held", type=int, default=60)
     ap.add_argument("--suggest-seeds", type=int, default=4)
     ap.add_argument("--suggest-max-cuts", type=int, default=18)
+    ap.add_argument("--no-speed", action="store_true", help="skip the speed runs (learn 40 cuts, predict 1000)")
+    ap.add_argument("--save", default=None, help="pickle the per-seed rows here (to --combine runs of other processes)")
+    ap.add_argument("--combine", nargs="+", default=None, help="only print the summary of these saved runs")
     ap.add_argument("--budget-s", type=float, default=np.inf,
                     help="start no new seed after this many seconds (the summary covers the seeds done)")
     args = ap.parse_args(argv)
@@ -200,6 +249,10 @@ def main(argv=None):
         args.seeds, args.sizes, args.held, args.suggest_seeds = 3, [20], 30, 1
     base_sizes = sorted(set(args.sizes) | {10, 20, 30, 60, 120})
     log = lambda s: print(s, flush=True)  # noqa: E731
+    if args.combine:
+        rows = [r for f in args.combine for r in pickle.load(open(f, "rb"))]
+        summary(sorted(rows, key=lambda r: r["seed"]), args.sizes, base_sizes, args.held, log)
+        return
     rows = []
     t_all = time.perf_counter()
     for seed in (args.seed_list if args.seed_list else range(args.seeds)):
@@ -208,64 +261,35 @@ def main(argv=None):
             break
         r, last_prob = run_seed(seed, args.sizes, base_sizes, args.held, log)
         rows.append(r)
-    args.seeds = len(rows)
-    med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
-    log("\n## held-out accuracy (median over %d seeds, %d held-out cuts each)" % (args.seeds, args.held))
-    log("| training cuts | prior (nominal) | posterior | logistic | kNN (k=5) |")
-    log("|---|---|---|---|---|")
-    for n in base_sizes:
-        post = f"{med(f'acc_post_{n}'):.3f}" if n in args.sizes else "-"
-        log(f"| {n} | {med('acc_prior'):.3f} | {post} | {med(f'acc_logit_{n}'):.3f} | {med(f'acc_knn_{n}'):.3f} |")
-    for n in args.sizes:
-        share = np.mean([r[f"acc_post_{n}"] >= 0.9 for r in rows])
-        log(f"posterior, {n} cuts: share of seeds >= 90 %: {share:.2f}; mean {np.mean([r[f'acc_post_{n}'] for r in rows]):.3f}")
-    for name in ("logit", "knn"):
-        need = [n for n in base_sizes if med(f"acc_{name}_{n}") >= 0.9]
-        log(f"{name}: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(base_sizes)}")
-    need = [n for n in args.sizes if med(f"acc_post_{n}") >= 0.9]
-    log(f"posterior: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(args.sizes)}")
-    log("\n## 50 % boundary vs the true (converged SDM) limit, production cut 0.5 D down")
-    log(f"median relative error {med('boundary_median_err'):.3f}; median share of speeds within 10 %: "
-        f"{med('boundary_within_10'):.2f}")
-    p = np.concatenate([r["p_held"] for r in rows])
-    t = np.concatenate([r["truth_held"] for r in rows])
-    log("\n## reliability (held-out cuts pooled over seeds)")
-    log("| P(stable) bin | cuts | mean P | share stable |")
-    log("|---|---|---|---|")
-    edges = np.array([0, 0.05, 0.2, 0.4, 0.6, 0.8, 0.95, 1.0001])
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        sel = (p >= lo) & (p < hi)
-        if sel.any():
-            log(f"| {lo:.2f}-{min(hi, 1):.2f} | {sel.sum()} | {p[sel].mean():.3f} | {t[sel].mean():.3f} |")
-    n = max(args.sizes)
-    log(f"\n## speed: learn {n} cuts median {med(f'time_learn_{n}'):.1f} s (max "
-        f"{max(r[f'time_learn_{n}'] for r in rows):.1f}); predict {args.held} held-out cuts median "
-        f"{med(f'time_predict_{n}'):.1f} s")
-    causes = [r[f"cause_{n}"] for r in rows]
-    log("causes named: " + ", ".join(f"{c}: {causes.count(c)}" for c in sorted(set(causes))))
-    # speed of --predict 1000 cuts (a grid: 2 engagements x 50 speeds x 10 depths)
-    r0, prob = rows[-1], last_prob
-    rr, aa, ee = np.meshgrid(np.linspace(*RPM, 50), np.geomspace(5e-4, 2e-2, 10), [0.1, 0.5], indexing="ij")
-    m = rr.size
-    grid = CutTable(rr.ravel(), aa.ravel(), ee.ravel() * prob.setup.tool.diameter_m, np.ones(m, bool), np.full(m, -1),
-                    np.ones(m), np.full(m, np.nan), np.zeros(m, bool))
-    t0 = time.perf_counter()
-    predict_cuts(r0["post"].posterior, prob.setup, grid)
-    log(f"predict 1000 cuts (2 engagements x 50 speeds x 10 depths): {time.perf_counter() - t0:.1f} s")
-    # 40 cuts
-    rng = np.random.default_rng(99)
-    pr = tool_problem(u_prior=rng.uniform(-1.5, 1.5, 5) * PriorSD().log_sds(), rpm_range=RPM)
-    c40 = random_cuts(pr, 40, rng)
-    c40 = label(c40, true_limits(pr, c40.spindle_rpm, c40.radial_depth_m, c40.down), rng)
-    t0 = time.perf_counter()
-    learn(pr.setup, pr.prior, c40)
-    log(f"learn 40 cuts: {time.perf_counter() - t0:.1f} s")
-    log("\n## --suggest vs a grid of test cuts (cuts to a stable cut within 5 % of the best stable MRR)")
-    log("| seed | grid | suggest |")
-    log("|---|---|---|")
-    for s in range(args.suggest_seeds):
-        g, q = suggest_vs_grid(s, args.suggest_max_cuts, log)
-        log(f"| {s} | {g} | {q} |")
+        if args.save:
+            with open(args.save, "wb") as fh:
+                pickle.dump([{k: v for k, v in x.items() if k != "post"} for x in rows], fh)
+    summary(rows, args.sizes, base_sizes, args.held, log)
+    if not args.no_speed:
+        # speed of --predict 1000 cuts (a grid: 2 engagements x 50 speeds x 10 depths)
+        r0, prob = rows[-1], last_prob
+        rr, aa, ee = np.meshgrid(np.linspace(*RPM, 50), np.geomspace(5e-4, 2e-2, 10), [0.1, 0.5], indexing="ij")
+        m = rr.size
+        grid = CutTable(rr.ravel(), aa.ravel(), ee.ravel() * prob.setup.tool.diameter_m, np.ones(m, bool),
+                        np.full(m, -1), np.ones(m), np.full(m, np.nan), np.zeros(m, bool))
+        t0 = time.perf_counter()
+        predict_cuts(r0["post"].posterior, prob.setup, grid)
+        log(f"predict 1000 cuts (2 engagements x 50 speeds x 10 depths): {time.perf_counter() - t0:.1f} s")
+        # 40 cuts
+        rng = np.random.default_rng(99)
+        pr = tool_problem(u_prior=rng.uniform(-1.5, 1.5, 5) * PriorSD().log_sds(), rpm_range=RPM)
+        c40 = random_cuts(pr, 40, rng)
+        c40 = label(c40, true_limits(pr, c40.spindle_rpm, c40.radial_depth_m, c40.down), rng)
+        t0 = time.perf_counter()
+        learn(pr.setup, pr.prior, c40)
+        log(f"learn 40 cuts: {time.perf_counter() - t0:.1f} s")
+    if args.suggest_seeds:
+        log("\n## --suggest vs a grid of test cuts (cuts to a stable cut within 5 % of the best stable MRR)")
+        log("| seed | grid | suggest |")
+        log("|---|---|---|")
+        for s in range(args.suggest_seeds):
+            g, q = suggest_vs_grid(s, args.suggest_max_cuts, log)
+            log(f"| {s} | {g} | {q} |")
     log(f"\ntotal {time.perf_counter() - t_all:.0f} s")
 
 

@@ -67,6 +67,20 @@ def test_table_interpolation_against_direct_limits(problem):
     assert np.quantile(errs, 0.9) < 0.08
 
 
+def test_table_filled_by_worker_processes_equals_the_serial_table(problem):
+    """Forked workers fill the same SDM table, value for value, as this process alone (the jobs
+    come back in order; each node's search is deterministic)."""
+    setup = problem.setup
+    d = setup.tool.diameter_m
+    grid = Grid((-0.03, 0.03), 0.015, np.array([-0.5, 0.5]), np.array([-0.4, 0.0, 0.4]), sdm_steps=(10.0, 20))
+    rpm, ae, down = np.array([9000.0, 15000.0, 21000.0]), np.array([0.1, 0.5, 0.5]) * d, np.array([True, False, True])
+    serial, forked = (build_table(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients, rpm, ae,
+                                  down, grid, workers=w) for w in (1, 2))
+    for a, b in zip(serial.values, forked.values):
+        assert np.array_equal(a, b)
+    assert [v.shape for v in serial.values] == [v.shape for v in forked.values]
+
+
 def test_likelihood_limits():
     lk = Likelihood(mislabel=0.05, boundary_scale=0.03)
     far = np.array([[-2.0, 2.0, 0.0]])  # far below, far above, on the limit

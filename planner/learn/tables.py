@@ -25,6 +25,8 @@ for a one-mode tool this is each mode's own parameters; for several modes it is 
 
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -42,6 +44,8 @@ SDM_STEPS_PER_MODE_PERIOD, SDM_MIN_STEPS = 20.0, 40  # about 0.5 % from converge
 # ratio x0.35..2.8) and the log limit is far from linear over that: 3 x 2 nodes (the first version) put
 # the limit at the TRUE parameters off by up to a factor 2.4 at half and full immersion (docs/learn.md).
 FINE_NODES, COARSE_NODES = (5, 4), (4, 3)
+# Tables of fewer limits than this are filled in this process (a fork costs more than it saves).
+PARALLEL_MIN_LIMITS = 400
 
 
 @dataclass(frozen=True)
@@ -208,8 +212,46 @@ def reference_limits(model: ModalModel, tool: Tool, cut: Cut, coefficients: Cutt
     return depth[inverse]
 
 
+def _node_log_limits(job) -> np.ndarray:
+    """``log`` limits of one table node: the reference structure with its damping scaled, the
+    coefficients with ``Krc`` scaled, at the lattice speeds."""
+    model, tool, cut, coefficients, log_zeta, log_ratio, rpm, how, sdm_steps = job
+    return np.log(reference_limits(scaled_model(model, log_zeta=log_zeta), tool, cut,
+                                   scaled_coefficients(coefficients, log_kr=log_ratio), rpm, method=how,
+                                   steps_per_mode_period=sdm_steps[0], min_steps=sdm_steps[1]))
+
+
+def default_workers() -> int:
+    """Processes for the tables: ``ROBOMILL_WORKERS`` if set, else the cores this process may use."""
+    env = os.environ.get("ROBOMILL_WORKERS", "").strip()
+    if env:
+        return max(1, int(env))
+    return max(1, len(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else max(1, os.cpu_count() or 1)
+
+
+def _map(fn, jobs: list, *, workers: int) -> list:
+    """``[fn(j) for j in jobs]``, over ``workers`` forked processes (each with one BLAS thread)
+    where the platform forks (Linux); in order."""
+    workers = min(int(workers), len(jobs))
+    if workers <= 1 or sys.platform != "linux":
+        return [fn(j) for j in jobs]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                             initializer=_one_blas_thread) as pool:
+        return list(pool.map(fn, jobs))
+
+
+def _one_blas_thread():
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1)
+
+
 def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients,
-                rpm, radial_depth_m, down, grid: Grid, *, method: str = "sdm") -> LimitTable:
+                rpm, radial_depth_m, down, grid: Grid, *, method: str = "sdm",
+                workers: int | None = None) -> LimitTable:
     """The :class:`LimitTable` of cuts given by speed, radial depth and milling.
 
     Per engagement, the log-speed lattice holds every lattice point of ``log n_j - log_f_range``
@@ -228,6 +270,9 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     grid : Grid
     method : {'sdm', 'zoa', 'auto'}
         See :func:`method_for`.
+    workers : int, optional
+        Processes filling the table; by default :func:`default_workers`, or this process alone for
+        tables of fewer than ``PARALLEL_MIN_LIMITS`` limits. The values do not depend on it.
     """
     rpm = np.asarray(rpm, dtype=float).ravel()
     ae = np.asarray(radial_depth_m, dtype=float).ravel()
@@ -237,25 +282,29 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     keys = np.stack([ae, down.astype(float)], axis=1)
     uniq, group = np.unique(keys, axis=0, return_inverse=True)
     group = group.ravel()
-    lattices, tables, engagements = [], [], []
+    lattices, cuts, hows = [], [], []
     for g, (a, d) in enumerate(uniq):
         x = np.log(rpm[group == g]) / h
         lo, hi = np.floor(x - f_hi / h) - 1, np.ceil(x - f_lo / h) + 1
-        lat = np.unique(np.concatenate([np.arange(l0, h0 + 1) for l0, h0 in zip(lo, hi)]).astype(np.int64))
-        cut = replace(base_cut, radial_depth_m=float(a), milling="down" if d else "up")
-        how = method_for(tool, float(a), method)
+        lattices.append(np.unique(np.concatenate([np.arange(l0, h0 + 1) for l0, h0 in zip(lo, hi)]).astype(np.int64)))
+        cuts.append(replace(base_cut, radial_depth_m=float(a), milling="down" if d else "up"))
+        hows.append(method_for(tool, float(a), method))
+    # one job per (engagement, damping node, ratio node): independent SDM searches over the lattice
+    jobs = [(model, tool, cuts[g], coefficients, float(lz), float(lr), np.exp(lattices[g] * h), hows[g], grid.sdm_steps)
+            for g in range(len(cuts)) for lz in grid.log_zeta for lr in grid.log_ratio]
+    work = sum(lattices[g].size for g in range(len(cuts))) * grid.log_zeta.size * grid.log_ratio.size
+    if workers is None:
+        workers = default_workers() if work >= PARALLEL_MIN_LIMITS else 1
+    results = iter(_map(_node_log_limits, jobs, workers=workers))
+    tables = []
+    for lat in lattices:
         val = np.empty((lat.size, grid.log_zeta.size, grid.log_ratio.size))
-        for iz, lz in enumerate(grid.log_zeta):
-            ref = scaled_model(model, log_zeta=lz)
-            for ir, lr in enumerate(grid.log_ratio):
-                coef = scaled_coefficients(coefficients, log_kr=lr)
-                val[:, iz, ir] = np.log(reference_limits(ref, tool, cut, coef, np.exp(lat * h), method=how,
-                                                        steps_per_mode_period=grid.sdm_steps[0],
-                                                        min_steps=grid.sdm_steps[1]))
+        for iz in range(grid.log_zeta.size):
+            for ir in range(grid.log_ratio.size):
+                val[:, iz, ir] = next(results)
         val.setflags(write=False)
-        lattices.append(lat)
         tables.append(val)
-        engagements.append((float(a), bool(d)))
+    engagements = [(float(a), bool(d)) for a, d in uniq]
     methods = tuple(method_for(tool, a, method) for a in ae)
     return LimitTable(grid=grid, engagements=tuple(engagements), lattice=tuple(lattices), values=tuple(tables),
                       group=group, rpm=rpm, methods=methods)
