@@ -34,31 +34,11 @@ How the work is shared (results are those of :func:`stability.lobes.predict_poin
   of the points. Directions along the machine axes are not changed by the rounding. Pass ``0`` for
   exact values (one evaluation per distinct pose and direction).
 * Distinct modal models (after rounding) x cut frames x radial engagement x milling mode form a
-  *structure group*. Its two ZOA eigenvalue branches are computed once on the chatter-frequency grid
-  of :func:`stability.zoa.default_chatter_frequencies` and continued in frequency (each follows one
-  eigenvalue through the swaps of their order, :meth:`stability.zoa.ZOACurves.continued`); every
-  spindle speed of the group is then solved on that grid exactly as :func:`stability.zoa.envelope`
-  solves one speed (candidate lobe intervals, the same 1.25 preselection, a bracketed Illinois solve
-  of the phase condition), in a loop compiled by numba (:mod:`stability.zoa_batch`; numpy over
-  10^4 frequencies costs about 5 ms per group, the compiled loop about 1.2 ms of CPU). The grid
-  does not depend on the speed, so a path at many speeds on one pose costs one grid and a cheap
-  solve per speed.
-* The nearest stable speed at a chatter point is exact on the same grid: the unstable speeds at the
-  planned depth are the images, under every lobe's speed map ``n_k(f) = 60 f / (N (eps / 2 pi + k))``,
-  of the frequency runs where a branch's critical depth is below the allowed one (run ends solved
-  for); the connected unstable set around the planned speed ends at the candidates, each verified by
-  the limit solve there (and moved outwards by up to 1e-4 of itself when the sampled images missed a
-  lobe's turning point between two grid frequencies).
-* Forces: the rigid-tool force harmonics per unit depth are integrated in closed form over the
-  engagement window (``(N / 2 pi) int b(psi) exp(-i h N psi) dpsi`` with trigonometric ``b``), and the
-  helix is the exact axial filter ``int_0^a exp(-i h N kappa z) dz``; so the harmonics are exact
-  for every depth. (:func:`stability.forced.forced_response` takes them from 1024+ cell means with
-  an alias correction; the two agree to its stated 1e-4 of each harmonic, in practice far closer.)
-  The peak force uses the same angle set as :mod:`stability.forced` (4096 angles plus both sides
-  of every entry/exit angle) per distinct (engagement, feed, depth).
-* The surface location error needs the receptance at the harmonics of the tooth-passing frequency:
-  evaluated for all distinct (model, frame, force shape, speed) at once, with the harmonic count
-  of :func:`stability.forced.default_harmonics`.
+  *structure group*, whose limits at all its speeds, and nearest stable speeds, are solved together
+  (:mod:`planner.check_stability`).
+* Forces, torque and the surface location error: exact force harmonics and the receptance at the
+  tooth-passing harmonics, for all distinct (model, frame, force shape, speed) at once
+  (:mod:`planner.check_forces`).
 
 Caching is by these keys within one call; :attr:`ToolpathCheck.evaluations` counts what was
 computed. ``method='sdm'`` computes one semi-discretization limit per distinct (structure group,
@@ -69,7 +49,6 @@ speed on a 200-speed SDM lobe diagram refined by bisection: use it on short path
 from __future__ import annotations
 
 import math
-import sys
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -78,13 +57,13 @@ from typing import Literal
 import numpy as np
 
 from oma._arrays import readonly as _ro
-from oma.cutting import Cut, CuttingCoefficients, Tool, engagement_angles
+from oma.cutting import Cut
 from oma.modal import ModalModel
-from stability.oriented import average_directional_matrix, engaged_axial_integral, force_coefficients
-from stability.oriented import helix_lag_per_m, torque_coefficients
-from stability import zoa_batch as _zoa_batch
+from stability.oriented import average_directional_matrix
 from stability.setup import Limits
 
+from .check_forces import force_shapes, surface_errors
+from .check_stability import stability_sdm, stability_zoa
 from .poses import model_list
 from .toolpath import Toolpath
 
@@ -99,14 +78,8 @@ ROBOT_KINDS = ("unreachable", "joint_limit", "singularity", "chatter", "surface_
 METHODS = ("zoa", "sdm")
 
 _TWO_PI = 2.0 * math.pi
-#: Angles of the peak-force search, as in ``stability.forced`` (grid over a tooth pitch).
-_PEAK_GRID = 4096
-#: Structure groups per compiled-kernel call (granularity of the progress bar).
-_CHUNK = 64
 #: Without an rpm range in the limits, the nearest stable speed is searched in this factor range.
 _DEFAULT_RPM_FACTORS = (0.5, 2.0)
-#: SDM nearest-speed search: speeds of the lobe diagram, bisection steps of the boundary.
-_SDM_GRID, _SDM_BISECT = 200, 12
 
 
 # ================================================================================ result type
@@ -366,265 +339,6 @@ def _rpm_range(limits: Limits, rpm: np.ndarray):
     return rpm * _DEFAULT_RPM_FACTORS[0], rpm * _DEFAULT_RPM_FACTORS[1]
 
 
-def _mode_weights(models: _Models, frames: np.ndarray, b0: np.ndarray, model_id, frame_id, b0_id):
-    """Per structure group: ``W_r = v_r[:2] (B0^T v_r)^T`` and ``W_res = (R Res R^T)[:2] B0``."""
-    rot = frames[frame_id]  # (G, 3, 3)
-    v = np.einsum("gij,gmj->gmi", rot, models.dirs[model_id])  # mode directions in the cut frame
-    bt = b0[b0_id]  # (G, 3, 2)
-    w = np.einsum("gmi,gjl,gmj->gmil", v[:, :, :2], bt, v)
-    res = np.einsum("gip,gpq,gjq->gij", rot, models.res[model_id], rot)
-    wres = np.einsum("gij,gjl->gil", res[:, :2, :], bt)
-    return np.ascontiguousarray(w), np.ascontiguousarray(wres)
-
-
-def _stability_zoa(tool, models, frames, b0, sg_model, sg_frame, sg_b0, q_group, q_rpm, q_thr, q_lo, q_hi,
-                   q_near, n_freq, progress, counts):
-    """ZOA limits (and nearest stable speeds) of every query, grouped by structure group."""
-    order = np.argsort(q_group, kind="stable")
-    n_groups = sg_model.size
-    ptr = np.searchsorted(q_group[order], np.arange(n_groups + 1))
-    w, wres = _mode_weights(models, frames, b0, sg_model, sg_frame, sg_b0)
-    fn = np.ascontiguousarray(models.fn[sg_model])
-    f_lo, f_hi = fn.min(axis=1) / 3.0, fn.max(axis=1) * 3.0
-    args = [np.ascontiguousarray(a[order]) for a in (q_rpm, q_thr, q_lo, q_hi)]
-    near = np.ascontiguousarray(q_near[order])
-    depth, freq, nearest = (np.empty(order.size) for _ in range(3))
-    scan = _zoa_batch.scan_kernel()
-    from tqdm import tqdm
-
-    with tqdm(total=n_groups, desc="check: stability", unit="group", file=sys.stderr, disable=not progress) as bar:
-        for g0 in range(0, n_groups, _CHUNK):
-            g1 = min(n_groups, g0 + _CHUNK)
-            q0, q1 = ptr[g0], ptr[g1]
-            sel = slice(g0, g1)
-            # modes that do not act in the plane of any of these cuts (W_r = 0: e.g. along the tool
-            # axis) add nothing to G_or B0 and are left out of the loop (they still set the grid)
-            act = np.flatnonzero(np.any(w[sel] != 0, axis=(0, 2, 3)))
-            pick = lambda a: np.ascontiguousarray(a[sg_model[sel]][:, act])  # noqa: E731
-            scan(np.ascontiguousarray(fn[sel][:, act]), pick(models.zeta), pick(models.stiff),
-                 np.ascontiguousarray(w[sel][:, act]), wres[sel], f_lo[sel], f_hi[sel],
-                 float(tool.teeth), int(n_freq), (ptr[g0:g1 + 1] - q0).astype(np.int64),
-                 *(a[q0:q1] for a in args), near[q0:q1], depth[q0:q1], freq[q0:q1], nearest[q0:q1])
-            counts["structure_groups"] += g1 - g0
-            bar.update(g1 - g0)
-    out = [np.empty(order.size) for _ in range(3)]
-    for dst, src in zip(out, (depth, freq, nearest)):
-        dst[order] = src
-    counts["limits"] += int(order.size)
-    counts["nearest_stable"] += int(np.count_nonzero(q_near & (out[0] < q_thr)))
-    return out
-
-
-def _sdm_limit(model, tool, cut, coefficients, rpm):
-    from stability.lobes import lobe_diagram
-
-    d = lobe_diagram(model, tool, cut, coefficients, rpm_range=(rpm, 2.0 * rpm), rpm=[rpm], method="sdm")
-    return float(d.depth_limit_m[0]), float(d.chatter_frequency_hz[0])
-
-
-def _sdm_nearest(model, tool, cut, coefficients, rpm0, thr, lo, hi):
-    """Nearest stable speed by SDM: the nearest stable speed of a 200-speed lobe diagram over
-    ``[lo, hi]``, its boundary towards ``rpm0`` refined by bisection (a stable window narrower
-    than the diagram's spacing can be missed)."""
-    from stability.lobes import lobe_diagram
-
-    target = min(max(rpm0, lo), hi)
-    if target != rpm0 and _sdm_limit(model, tool, cut, coefficients, target)[0] >= thr:
-        return float(target)
-    diagram = lobe_diagram(model, tool, cut, coefficients, rpm_range=(lo, hi), n_rpm=_SDM_GRID, method="sdm")
-    rpm, ok = np.asarray(diagram.rpm), np.asarray(diagram.depth_limit_m) >= thr
-    if not ok.any():
-        return np.nan
-    j = int(np.flatnonzero(ok)[np.argmin(np.abs(rpm[ok] - target))])
-    good = rpm[j]
-    nb = j - 1 if good > target else j + 1  # the grid neighbour towards the planned speed: unstable
-    bad = rpm[nb] if 0 <= nb < rpm.size and (rpm[nb] - target) * (good - target) > 0 else target
-    for _ in range(_SDM_BISECT):
-        mid = 0.5 * (good + bad)
-        if _sdm_limit(model, tool, cut, coefficients, mid)[0] >= thr:
-            good = mid
-        else:
-            bad = mid
-    return float(good)
-
-
-def _stability_sdm(tool, coefficients, models, frames, sg_model, sg_frame, sg_cut, q_group, q_rpm, q_thr, q_lo,
-                   q_hi, q_near, progress, counts):
-    from tqdm import tqdm
-
-    n = q_group.size
-    depth, freq, nearest = np.empty(n), np.empty(n), np.full(n, np.nan)
-    for q in tqdm(range(n), desc="check: SDM", file=sys.stderr, disable=not progress):
-        g = q_group[q]
-        model = models.model(sg_model[g])
-        rot = frames[sg_frame[g]]
-        cut = Cut(sg_cut[g][0], sg_cut[g][1], sg_cut[g][2], rot[0], rot[1])
-        depth[q], freq[q] = _sdm_limit(model, tool, cut, coefficients, q_rpm[q])
-        if q_near[q] and depth[q] < q_thr[q]:
-            nearest[q] = _sdm_nearest(model, tool, cut, coefficients, q_rpm[q], q_thr[q], q_lo[q], q_hi[q])
-            counts["nearest_stable"] += 1
-    counts["structure_groups"] += int(np.unique(q_group).size)
-    counts["limits"] += n
-    return depth, freq, nearest
-
-
-def _exp_integrals(st: float, ex: float, nu: np.ndarray) -> np.ndarray:
-    """``int_st^ex exp(i nu psi) dpsi`` for integer ``nu`` (any shape)."""
-    nu = np.asarray(nu, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        val = (np.exp(1j * nu * ex) - np.exp(1j * nu * st)) / (1j * nu)
-    return np.where(nu == 0, ex - st, val)
-
-
-# Basis (1, sin, cos, sin^2, cos^2, sin cos) as sums of exp(i m psi), m = -2..2 (columns).
-_BASIS_EXP = np.array([
-    [0, 0, 1, 0, 0],
-    [0, 0.5j, 0, -0.5j, 0],
-    [0, 0.5, 0, 0.5, 0],
-    [-0.25, 0, 0.5, 0, -0.25],
-    [0.25, 0, 0.5, 0, 0.25],
-    [0.25j, 0, 0, 0, -0.25j],
-], dtype=complex)
-
-
-def _force_shapes(tool: Tool, coefficients: CuttingCoefficients, cut: Cut, depths, n_harm: int):
-    """Rigid-tool force of one engagement (radial depth, milling, feed) at many axial depths.
-
-    Returns
-    -------
-    unit_harmonics : ndarray, shape (3, n_harm + 1), complex
-        Exact Fourier coefficients of the straight-flute force per unit depth in the cut frame
-        (f, n, a) over a tooth period, ``t = 0`` with tooth 0 at ``phi = 0``:
-        ``(N / 2 pi) int_st^ex b(psi) exp(-i h N psi) dpsi`` (closed form), N/m. Times
-        :func:`_helix_filter` they are the coefficients at any depth.
-    mean_torque : ndarray, shape (n_depths,)
-        Mean spindle torque, N m.
-    peak : ndarray, shape (n_depths,)
-        Largest resultant force in the (f, n) plane over a tooth period, N.
-    """
-    depths = np.asarray(depths, dtype=float)
-    st, ex = engagement_angles(tool, cut)
-    h = np.arange(n_harm + 1)
-    nu = np.arange(-2, 3)[None, :] - tool.teeth * h[:, None]  # (H+1, 5)
-    basis = (_exp_integrals(st, ex, nu) @ _BASIS_EXP.T) * tool.teeth / _TWO_PI  # (H+1, 6)
-    fc = force_coefficients(coefficients, cut.feed_per_tooth_m)
-    tc = torque_coefficients(coefficients, cut.feed_per_tooth_m, tool.diameter_m / 2.0)
-    straight = np.abs(helix_lag_per_m(tool) * depths) < _STRAIGHT_LAG_RAD
-    return ((basis @ fc.T).T, float((basis[0] @ tc).real) * depths,
-            _peak_forces(tool, cut, fc, depths, straight))
-
-
-def _helix_filter(tool: Tool, depths, n_harm: int) -> np.ndarray:
-    """``int_0^a exp(-i h N kappa z) dz`` for h = 0..n_harm at each depth ``a``, (n_depths, n_harm + 1), m:
-    the axial integral of a force whose immersion lags by ``kappa z`` at height ``z``."""
-    depths = np.asarray(depths, dtype=float)
-    kappa = helix_lag_per_m(tool)
-    out = np.empty((depths.size, n_harm + 1), dtype=complex)
-    out[:] = depths[:, None]
-    helix = np.abs(kappa * depths) >= _STRAIGHT_LAG_RAD
-    if helix.any():
-        hh = np.arange(1, n_harm + 1)[None, :] * tool.teeth
-        out[helix, 1:] = (1.0 - np.exp(-1j * hh * kappa * depths[helix, None])) / (1j * hh * kappa)
-    return out
-
-
-#: As ``stability.oriented._STRAIGHT_LAG_RAD``: a helix lag below this over the depth is straight.
-_STRAIGHT_LAG_RAD = 1e-9
-
-
-def _primitives(psi):
-    """Primitives of the basis (1, sin, cos, sin^2, cos^2, sin cos), shape psi.shape + (6,)."""
-    s2 = np.sin(2.0 * psi)
-    return np.stack([psi, -np.cos(psi), np.sin(psi), psi / 2 - s2 / 4, psi / 2 + s2 / 4, -np.cos(2.0 * psi) / 4],
-                    axis=-1)
-
-
-def _engaged_primitive(u, st: float, ex: float):
-    """``P(u) = int_0^u b(psi) g(psi) dpsi`` on the unwrapped angle, ``g`` the indicator of the
-    window ``[st, ex]`` repeated every 2 pi (as ``stability.oriented``), shape u.shape + (6,)."""
-    k = np.floor(u / _TWO_PI)
-    v = u - _TWO_PI * k
-    f_st = _primitives(np.array(st))
-    total = _primitives(np.array(ex)) - f_st
-    return k[..., None] * total + _primitives(np.clip(v, st, ex)) - f_st
-
-
-def _peak_forces(tool: Tool, cut: Cut, fc: np.ndarray, depths: np.ndarray, straight: np.ndarray) -> np.ndarray:
-    """Peak resultant force in the (f, n) plane at each depth, N, on the angle set of
-    ``stability.forced`` (4096 angles over a tooth pitch plus both sides of every angle where a
-    tooth enters or leaves the cut at the tip or at the top of the depth). The force at tip angle
-    ``phi`` is ``sum_j (P(phi_j) - P(phi_j - kappa a)) / kappa`` with straight flutes ``a`` times the
-    engaged sum (:func:`stability.oriented.engaged_axial_integral`, vectorised over depth here)."""
-    pitch = _TWO_PI / tool.teeth
-    st, ex = engagement_angles(tool, cut)
-    kappa = helix_lag_per_m(tool)
-    grid = pitch * np.arange(_PEAK_GRID) / _PEAK_GRID
-    tooth = pitch * np.arange(tool.teeth)
-    eps = 1e-9 * pitch
-    out = np.empty(depths.size)
-
-    def resultant(force):
-        return np.max(np.hypot(force[..., 0], force[..., 1]), axis=-1)
-
-    if straight.any():  # a times the force per unit depth: the straight-flute angle set, once
-        crit = np.mod(np.array([st, ex, st, ex])[:, None] - tooth, pitch).ravel()
-        phi = np.concatenate([grid, crit - eps, crit, crit + eps])
-        unit = engaged_axial_integral(tool, cut, phi, 1.0) @ fc.T  # = engaged_sum for zero lag
-        out[straight] = resultant(depths[straight, None, None] * unit[None, :, :])
-    idx = np.flatnonzero(~straight)
-    if idx.size:
-        ang = grid[:, None] + tooth[None, :]  # (grid, teeth)
-        p_tip = _engaged_primitive(ang, st, ex)
-        idx = idx[np.argsort(depths[idx], kind="stable")]
-        chunk = max(1, 4_000_000 // (grid.size * tool.teeth * 6))
-        for j0 in range(0, idx.size, chunk):
-            sel = idx[j0:j0 + chunk]
-            lag = kappa * depths[sel]
-            # only angles at which some tooth cuts somewhere on the depth (elsewhere the force is 0)
-            cuts = np.any(np.mod(ang - st, _TWO_PI) <= ex - st + lag.max(), axis=1)
-            top = _engaged_primitive(ang[None, cuts, :] - lag[:, None, None], st, ex)
-            e = np.sum(p_tip[None, cuts] - top, axis=2) / kappa  # (n, angles, 6)
-            out[sel] = resultant(e @ fc.T) if cuts.any() else 0.0
-        # both sides of the entry and exit angles at the tip and at the top of the depth
-        lag = kappa * depths[idx]
-        ends = np.stack([np.full(idx.size, st), np.full(idx.size, ex), st + lag, ex + lag], axis=1)
-        crit = np.mod(ends[:, :, None] - tooth[None, None, :], pitch).reshape(idx.size, -1)
-        phi = np.concatenate([crit - eps, crit, crit + eps], axis=1)[:, :, None] + tooth  # (n, 12 N, teeth)
-        e = np.sum(_engaged_primitive(phi, st, ex) - _engaged_primitive(phi - lag[:, None, None], st, ex),
-                   axis=2) / kappa
-        out[idx] = np.maximum(out[idx], resultant(e @ fc.T))
-    return out
-
-
-def _surface_errors(tool, models, frames, unit_h, fg_model, fg_frame, fg_eng, fg_depth, fg_rpm, fg_harm, fg_sign):
-    """Surface location error at the tool tip of every forced group (vectorised, chunked):
-    ``sign n . (G(0) F_0 + 2 Re sum_h G(h f_T) F_h exp(i h N phi_fin))`` (stability.forced), with
-    ``n . u_r (u_r . F) = v_r[1] (v_r . c)`` for the mode directions ``v_r`` in the cut frame."""
-    teeth = tool.teeth
-    out = np.empty(fg_model.size)
-    n_modes = models.fn.shape[1]
-    h_max = int(fg_harm.max())
-    chunk = max(1, 2_000_000 // (h_max * n_modes + 1))
-    h = np.arange(1, h_max + 1)
-    for j0 in range(0, fg_model.size, chunk):
-        s = slice(j0, min(fg_model.size, j0 + chunk))
-        mid, rot = fg_model[s], frames[fg_frame[s]]
-        c = unit_h[fg_eng[s]] * _helix_filter(tool, fg_depth[s], h_max)[:, None, :]  # (G, 3, H+1), cut frame
-        v = np.einsum("gij,gmj->gmi", rot, models.dirs[mid])  # (G, m, 3) cut frame
-        res_n = np.einsum("gp,gpq,gkq->gk", rot[:, 1], models.res[mid], rot)  # n . Res R^T  (G, 3)
-        proj = np.einsum("gmi,gih->gmh", v, c)  # v_r . c_h   (G, m, H+1)
-        static = np.sum(v[:, :, 1] * proj[:, :, 0].real / models.stiff[mid], axis=1) + np.einsum(
-            "gk,gk->g", res_n, c[:, :, 0].real)
-        f_h = (teeth * fg_rpm[s] / 60.0)[:, None] * h[None, :]  # (G, H)
-        rho = f_h[:, None, :] / models.fn[mid][:, :, None]
-        modal = 1.0 / (models.stiff[mid][:, :, None] * (1.0 - rho**2 + 2j * models.zeta[mid][:, :, None] * rho))
-        x_h = np.sum(v[:, :, 1, None] * proj[:, :, 1:] * modal, axis=1) + np.einsum("gk,gkh->gh", res_n, c[:, :, 1:])
-        phase = np.where(fg_sign[s][:, None] > 0, (-1.0) ** (h[None, :] * teeth), 1.0)  # exp(i h N phi_fin)
-        keep = h[None, :] <= fg_harm[s][:, None]
-        out[s] = fg_sign[s] * (static + 2.0 * np.sum(np.where(keep, (x_h * phase).real, 0.0), axis=1))
-    return out
-
-
 def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = None, *,
                    method: Literal["zoa", "sdm"] = "zoa", limits: Limits | None = None, progress: bool = False,
                    pose_resolution_deg: float | None = None, direction_resolution_deg: float = 0.01,
@@ -747,11 +461,11 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
     q_near = np.ones(q_first.size, dtype=bool)
     args = (sg_id[q_first], rpm[q_first], thr[q_first], lo[q_first], hi[q_first], q_near)
     if method == "zoa":
-        q_depth, q_freq, q_nearest = _stability_zoa(tool, pm, frames, b0, pm.index[sg_first], frame_id[sg_first],
+        q_depth, q_freq, q_nearest = stability_zoa(tool, pm, frames, b0, pm.index[sg_first], frame_id[sg_first],
                                                     eng_id[sg_first], *args, int(n_freq), progress, counts)
     else:
         sg_cut = [(fz[i], ae[i], "down" if down[i] else "up") for i in sg_first]
-        q_depth, q_freq, q_nearest = _stability_sdm(tool, coefficients, pm, frames, pm.index[sg_first],
+        q_depth, q_freq, q_nearest = stability_sdm(tool, coefficients, pm, frames, pm.index[sg_first],
                                                     frame_id[sg_first], sg_cut, *args, progress, counts)
     depth_limit, chatter_freq, nearest = q_depth[q_id], q_freq[q_id], q_nearest[q_id]
     chatter = depth_limit < thr
@@ -769,12 +483,12 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
     for e, i in enumerate(feng_first):
         mine = np.flatnonzero(feng_id[shape_first] == e)
         cut = Cut(fz[i], ae[i], "down" if down[i] else "up", [1, 0, 0], [0, 1, 0])
-        unit_h[e], shape_torque[mine], shape_peak[mine] = _force_shapes(tool, coefficients, cut,
+        unit_h[e], shape_torque[mine], shape_peak[mine] = force_shapes(tool, coefficients, cut,
                                                                         depth[shape_first[mine]], h_max)
     counts["force_shapes"] = int(n_shapes)
     fg_first, fg_id = _groups(pm.index, frame_id, shape_id, rpm)
     counts["forced_groups"] = int(fg_first.size)
-    sle = _surface_errors(tool, pm, frames, unit_h, pm.index[fg_first], frame_id[fg_first], feng_id[fg_first],
+    sle = surface_errors(tool, pm, frames, unit_h, pm.index[fg_first], frame_id[fg_first], feng_id[fg_first],
                           depth[fg_first], rpm[fg_first], harm[fg_first],
                           np.where(down[fg_first], 1.0, -1.0))[fg_id]
     peak = shape_peak[shape_id]

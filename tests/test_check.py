@@ -29,7 +29,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-import planner.check as check_module  # noqa: E402
+import planner.check_forces as check_forces  # noqa: E402
 from oma.cutting import Cut, CuttingCoefficients, Material, Tool, engagement_angles  # noqa: E402
 from oma.errors import ModelError  # noqa: E402
 from oma.modal import ModalModel  # noqa: E402
@@ -172,8 +172,8 @@ def test_force_harmonics_equal_a_brute_force_fft(milling, ae, depth):
     tool = Tool(2, 0.0254, np.deg2rad(30.0))
     coef = CuttingCoefficients(1.2e8, 4.5e7, 2.0e7, 2.0e3, 3.0e3, 5.0e2)
     cut = Cut(5e-4, ae, milling, [0, 1, 0], [-1, 0, 0])
-    unit, mean_torque, peak = check_module._force_shapes(tool, coef, cut, [depth], 33)
-    exact = unit * check_module._helix_filter(tool, [depth], 33)[0]
+    unit, mean_torque, peak = check_forces.force_shapes(tool, coef, cut, [depth], 33)
+    exact = unit * check_forces._helix_filter(tool, [depth], 33)[0]
     m = 2**16
     phi = np.pi * np.arange(m) / m  # one tooth pitch
     force = engaged_axial_integral(tool, cut, phi, depth) @ force_coefficients(coef, cut.feed_per_tooth_m).T
