@@ -108,7 +108,11 @@ def run_seed(seed, sizes, base_sizes, n_held, log):
                                            held.spindle_rpm[rows], method="sdm")
     rr = np.geomspace(*RPM, 48)
     boundary_truth = true_limits(prob, rr, np.full(rr.size, prob.setup.cut.radial_depth_m), np.ones(rr.size, bool))
-    out = {"seed": seed, "u_prior_in_sd": (u / sd).round(2).tolist(), "acc_prior": acc((held.axial_depth_m < prior_lim) * 1.0, truth)}
+    boundary_prior = reference_limits(prob.prior, prob.setup.tool, prob.setup.cut, prob.setup.material.cutting_coefficients,
+                                      rr, method="sdm")
+    out = {"seed": seed, "u_prior_in_sd": (u / sd).round(2).tolist(), "acc_prior": acc((held.axial_depth_m < prior_lim) * 1.0, truth),
+           "boundary_prior_err": float(np.median(np.abs(boundary_prior / boundary_truth - 1))),
+           "boundary_prior_within_10": float(np.mean(np.abs(boundary_prior / boundary_truth - 1) < 0.10))}
     for n in sizes:
         t0 = time.perf_counter()
         res = learn(prob.setup, prob.prior, subset(pool, n), seed=seed)
@@ -120,6 +124,7 @@ def run_seed(seed, sizes, base_sizes, n_held, log):
         out[f"time_learn_{n}"] = t_learn
         out[f"time_predict_{n}"] = t_pred
         out[f"cause_{n}"] = res.posterior.cause()
+        out[f"table_error_{n}"] = float(np.median(res.model_error)) if res.model_error.size else float("nan")
         out[f"loo_{n}"] = (res.accuracy_before, res.accuracy_after)
         out[f"warn_{n}"] = len(res.warnings)
         out[f"p_held_{n}"], out["truth_held"] = p, truth
@@ -205,6 +210,8 @@ def summary(rows, sizes, base_sizes, n_held, log):
     need = [n for n in sizes if med(f"acc_post_{n}") >= 0.9]
     log(f"posterior: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(sizes)}")
     log("\n## 50 % boundary vs the true (converged SDM) limit, production cut 0.5 D down")
+    log(f"prior (nominal model): median relative error {med('boundary_prior_err'):.3f}; median share of speeds within "
+        f"10 %: {med('boundary_prior_within_10'):.2f}")
     for n in sizes:
         if f"boundary_median_err_{n}" in rows[0]:
             log(f"{n} cuts: median relative error {med(f'boundary_median_err_{n}'):.3f}; median share of speeds within "
@@ -225,13 +232,16 @@ def summary(rows, sizes, base_sizes, n_held, log):
     for n in sizes:
         log(f"learn {n} cuts: median {med(f'time_learn_{n}'):.1f} s (max {max(r[f'time_learn_{n}'] for r in rows):.1f}); "
             f"predict {n_held} held-out cuts median {med(f'time_predict_{n}'):.1f} s")
+        if f"table_error_{n}" in rows[0]:
+            log(f"table vs direct limits at posterior samples ({n} cuts): median over seeds of the cuts' median RMS log "
+                f"error {med(f'table_error_{n}'):.3f}")
         causes = [r[f"cause_{n}"] for r in rows]
         log(f"causes named ({n} cuts): " + ", ".join(f"{c}: {causes.count(c)}" for c in sorted(set(causes))))
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--seeds", type=int, default=20, help="0: only the --suggest comparison")
     ap.add_argument("--seed-list", type=int, nargs="+", default=None,
                     help="these seeds instead of 0..seeds-1 (split a run over processes)")
     ap.add_argument("--quick", action="store_true", help="3 seeds, 20 cuts, 1 suggest seed")
@@ -239,6 +249,7 @@ def main(argv=None):
     ap.add_argument("--held", type=int, default=60)
     ap.add_argument("--suggest-seeds", type=int, default=4)
     ap.add_argument("--suggest-max-cuts", type=int, default=18)
+    ap.add_argument("--suggest-first", type=int, default=0, help="first suggest seed (split a run over processes)")
     ap.add_argument("--no-speed", action="store_true", help="skip the speed runs (learn 40 cuts, predict 1000)")
     ap.add_argument("--save", default=None, help="pickle the per-seed rows here (to --combine runs of other processes)")
     ap.add_argument("--combine", nargs="+", default=None, help="only print the summary of these saved runs")
@@ -264,8 +275,9 @@ def main(argv=None):
         if args.save:
             with open(args.save, "wb") as fh:
                 pickle.dump([{k: v for k, v in x.items() if k != "post"} for x in rows], fh)
-    summary(rows, args.sizes, base_sizes, args.held, log)
-    if not args.no_speed:
+    if rows:
+        summary(rows, args.sizes, base_sizes, args.held, log)
+    if rows and not args.no_speed:
         # speed of --predict 1000 cuts (a grid: 2 engagements x 50 speeds x 10 depths)
         r0, prob = rows[-1], last_prob
         rr, aa, ee = np.meshgrid(np.linspace(*RPM, 50), np.geomspace(5e-4, 2e-2, 10), [0.1, 0.5], indexing="ij")
@@ -287,7 +299,7 @@ def main(argv=None):
         log("\n## --suggest vs a grid of test cuts (cuts to a stable cut within 5 % of the best stable MRR)")
         log("| seed | grid | suggest |")
         log("|---|---|---|")
-        for s in range(args.suggest_seeds):
+        for s in range(args.suggest_first, args.suggest_first + args.suggest_seeds):
             g, q = suggest_vs_grid(s, args.suggest_max_cuts, log)
             log(f"| {s} | {g} | {q} |")
     log(f"\ntotal {time.perf_counter() - t_all:.0f} s")

@@ -11,7 +11,8 @@ import pytest
 from planner.learn.likelihood import CHATTER, STABLE, UNCERTAIN, Likelihood
 from planner.learn.posterior import PARAMETERS, PriorSD
 from planner.learn.synthetic import label, random_cuts, tool_problem
-from planner.learn.tables import Grid, build_table, reference_limits, scaled_coefficients, scaled_model
+from planner.learn.tables import (Grid, build_table, direct_log_limits, reference_limits, scaled_coefficients,
+                                  scaled_model)
 from planner.learn.update import learn
 
 
@@ -79,6 +80,40 @@ def test_table_filled_by_worker_processes_equals_the_serial_table(problem):
     for a, b in zip(serial.values, forked.values):
         assert np.array_equal(a, b)
     assert [v.shape for v in serial.values] == [v.shape for v in forked.values]
+
+
+def test_direct_limits_equal_the_table_at_its_nodes(problem):
+    """The check of the table (``direct_log_limits``: the scaled structure solved directly) and the
+    table (the reference solved at ``n / F`` per damping and ratio node) are two computations of
+    the same limit: at a parameter set on a node and a lattice speed they agree to the search's
+    tolerance (2e-3), whatever the stiffness and Ktc factors (exact scalings)."""
+    setup = problem.setup
+    d = setup.tool.diameter_m
+    grid = Grid((-0.045, 0.045), 0.015, np.array([-0.4, 0.3]), np.array([-0.3, 0.2]), sdm_steps=(10.0, 20))
+    rpm = np.exp(np.round(np.log([9000.0, 17000.0]) / 0.015) * 0.015)  # lattice speeds
+    ae, down = np.array([0.25, 1.0]) * d, np.array([False, True])
+    table = build_table(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients, rpm, ae, down,
+                        grid, workers=1)
+    u = np.array([[0.03, 0.2, -0.4, -0.1, -0.4], [-0.015, -0.3, 0.3, 0.25, 0.45]])  # f = lattice, zeta, ratio on nodes
+    direct = direct_log_limits(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients, rpm, ae,
+                               down, u, sdm_steps=grid.sdm_steps, workers=1)
+    np.testing.assert_allclose(table.log_limit(*u.T), direct, atol=3e-3)
+
+
+def test_model_error_widens_the_boundary():
+    """The forward model's error adds to the soft boundary in quadrature, per cut or as the
+    likelihood's own ``model_error``; without it the boundary is ``boundary_scale``."""
+    lk = Likelihood(boundary_scale=0.03)
+    x = np.array([0.05, -0.02])
+    np.testing.assert_allclose(lk.p_chatter(x), 1 / (1 + np.exp(-x / 0.03)))
+    e = np.array([0.04, 0.0])
+    np.testing.assert_allclose(lk.p_chatter(x, model_error=e), 1 / (1 + np.exp(-x / np.hypot(0.03, e))))
+    np.testing.assert_allclose(replace(lk, model_error=0.04).p_chatter(x), 1 / (1 + np.exp(-x / 0.05)))
+    t_wide = lk.log_terms(x[None], np.array([STABLE, STABLE]), np.ones(2), model_error=e)
+    t_sharp = lk.log_terms(x[None], np.array([STABLE, STABLE]), np.ones(2))
+    assert t_wide[0, 0] > t_sharp[0, 0] and t_wide[0, 1] == t_sharp[0, 1]  # a mark against the model costs less
+    with pytest.raises(ValueError, match="model_error"):
+        Likelihood(model_error=-0.1)
 
 
 def test_likelihood_limits():

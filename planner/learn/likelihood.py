@@ -6,7 +6,10 @@ For a cut of depth ``a`` and a parameter set whose limit at the cut's speed and 
     p_chatter = Phi_logistic(log(a / b) / s),       s = ``boundary_scale`` (default 0.03),
 
 the few per cent by which a limit computed from nominal parameters is uncertain even when the
-parameters are right (runout, feed variation, the operator's threshold). A mark is wrong with
+parameters are right (runout, feed variation, the operator's threshold). The forward model's own
+error (the tables' interpolation, measured by ``learn`` against direct SDM limits at posterior
+samples) adds in quadrature: per cut while learning, ``s_j = sqrt(s^2 + e_j^2)``, and its typical
+value ``model_error`` in predictions. A mark is wrong with
 probability ``mislabel`` (epsilon, default 0.05), whatever the cut did:
 
     P(mark 'chatter') = eps + (1 - 2 eps) p_chatter,    P(mark 'stable') = 1 - P(mark 'chatter').
@@ -40,29 +43,40 @@ class Likelihood:
     boundary_scale: float = 0.03
     uncertain_scale: float = 0.15
     uncertain_weight: float = 0.3
+    model_error: float = 0.0
 
     def __post_init__(self):
         if not 0 <= self.mislabel < 0.5:
             raise ValueError(f"mislabel must be in [0, 0.5), found {self.mislabel}")
         if not (self.boundary_scale > 0 and self.uncertain_scale > 0):
             raise ValueError("boundary_scale and uncertain_scale must be > 0")
+        if not self.model_error >= 0:
+            raise ValueError(f"model_error must be >= 0, found {self.model_error}")
 
-    def p_chatter(self, log_ratio) -> np.ndarray:
+    def scale(self, model_error=None):
+        """Width of the soft boundary: ``boundary_scale`` and the forward model's error (per cut
+        when given, else ``model_error``) in quadrature."""
+        e = self.model_error if model_error is None else np.asarray(model_error, dtype=float)
+        return np.hypot(self.boundary_scale, e)
+
+    def p_chatter(self, log_ratio, *, model_error=None) -> np.ndarray:
         """Chance the cut chatters, ``log_ratio = log(a / b)``."""
-        return expit(np.asarray(log_ratio) / self.boundary_scale)
+        return expit(np.asarray(log_ratio) / self.scale(model_error))
 
-    def log_terms(self, log_ratio, outcome, weight) -> np.ndarray:
+    def log_terms(self, log_ratio, outcome, weight, *, model_error=None) -> np.ndarray:
         """Weighted log-likelihood of each cut, shape of ``log_ratio`` (``(..., n_cuts)``).
 
         ``outcome`` (n_cuts,) holds STABLE, CHATTER or UNCERTAIN; ``weight`` (n_cuts,) the label
-        weights (the tempering of uncertain marks is applied here, on top).
+        weights (the tempering of uncertain marks is applied here, on top); ``model_error``
+        (n_cuts,) the forward model's error at each cut (default ``self.model_error``).
         """
-        x = np.asarray(log_ratio, dtype=float) / self.boundary_scale
+        e = self.model_error if model_error is None else np.asarray(model_error, dtype=float)
+        x = np.asarray(log_ratio, dtype=float) / np.hypot(self.boundary_scale, e)
         eps = self.mislabel
         # log(eps + (1 - 2 eps) sigma(x)) and log(eps + (1 - 2 eps) sigma(-x)), stably
         log_ch = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(x))
         log_st = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(-x))
-        z = np.asarray(log_ratio, dtype=float) / self.uncertain_scale
+        z = np.asarray(log_ratio, dtype=float) / np.hypot(self.uncertain_scale, e)
         log_un = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) - 0.5 * z * z)
         outcome = np.asarray(outcome)
         w = np.asarray(weight, dtype=float) * np.where(outcome == UNCERTAIN, self.uncertain_weight, 1.0)
@@ -71,4 +85,5 @@ class Likelihood:
 
     def to_dict(self) -> dict:
         return {"mislabel": self.mislabel, "boundary_scale": self.boundary_scale,
-                "uncertain_scale": self.uncertain_scale, "uncertain_weight": self.uncertain_weight}
+                "uncertain_scale": self.uncertain_scale, "uncertain_weight": self.uncertain_weight,
+                "model_error": self.model_error}

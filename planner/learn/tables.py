@@ -34,7 +34,7 @@ import numpy as np
 from oma.cutting import Cut, CuttingCoefficients, Tool
 from oma.modal import ModalModel
 
-__all__ = ["Grid", "LimitTable", "build_table", "reference_limits", "MAX_DEPTH_M"]
+__all__ = ["Grid", "LimitTable", "build_table", "direct_log_limits", "reference_limits", "MAX_DEPTH_M"]
 
 MAX_DEPTH_M = 1.0  # a limit above this (or none) counts as this: no test cut is that deep
 SDM_BELOW_IMMERSION = 0.2  # ae/D below which the SDM is used (as `plan --method auto`)
@@ -219,6 +219,44 @@ def _node_log_limits(job) -> np.ndarray:
     return np.log(reference_limits(scaled_model(model, log_zeta=log_zeta), tool, cut,
                                    scaled_coefficients(coefficients, log_kr=log_ratio), rpm, method=how,
                                    steps_per_mode_period=sdm_steps[0], min_steps=sdm_steps[1]))
+
+
+def _direct_log_limits(job) -> np.ndarray:
+    """``log`` limits of one parameter set (five log-multipliers ``u``) at cuts of one engagement,
+    computed directly (no table)."""
+    model, tool, cut, coefficients, u, rpm, how, sdm_steps = job
+    return np.log(reference_limits(scaled_model(model, log_f=u[0], log_k=u[1], log_zeta=u[2]), tool, cut,
+                                   scaled_coefficients(coefficients, log_kt=u[3], log_kr=u[4]), rpm, method=how,
+                                   steps_per_mode_period=sdm_steps[0], min_steps=sdm_steps[1]))
+
+
+def direct_log_limits(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients, rpm,
+                      radial_depth_m, down, samples, *, method: str = "sdm", sdm_steps=None,
+                      workers: int | None = None) -> np.ndarray:
+    """``log`` limit depth of each parameter set (rows of ``samples``: five log-multipliers of the
+    reference) at each cut, computed directly by the cut's method: the check of a table's
+    interpolation, shape (n_samples, n_cuts)."""
+    rpm = np.asarray(rpm, dtype=float).ravel()
+    ae = np.asarray(radial_depth_m, dtype=float).ravel()
+    down = np.asarray(down, dtype=bool).ravel()
+    samples = np.atleast_2d(np.asarray(samples, dtype=float))
+    steps = tuple(sdm_steps) if sdm_steps is not None else (SDM_STEPS_PER_MODE_PERIOD, SDM_MIN_STEPS)
+    keys = np.stack([ae, down.astype(float)], axis=1)
+    uniq, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.ravel()
+    jobs, where = [], []
+    for i, u in enumerate(samples):
+        for g, (a, d) in enumerate(uniq):
+            cols = np.flatnonzero(group == g)
+            cut = replace(base_cut, radial_depth_m=float(a), milling="down" if d else "up")
+            jobs.append((model, tool, cut, coefficients, u, rpm[cols], method_for(tool, float(a), method), steps))
+            where.append((i, cols))
+    if workers is None:
+        workers = default_workers() if samples.shape[0] * rpm.size >= PARALLEL_MIN_LIMITS / 4 else 1
+    out = np.empty((samples.shape[0], rpm.size))
+    for (i, cols), val in zip(where, _map(_direct_log_limits, jobs, workers=workers)):
+        out[i, cols] = val
+    return out
 
 
 def default_workers() -> int:
