@@ -118,9 +118,9 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     validate : int
         Posterior samples at which the table is checked against direct limits (0: not checked).
         The RMS log error ``e_j`` of each cut widens its soft boundary (``Likelihood``) and the
-        posterior is sampled again with it: a forward model that is off by more than the 3 %
-        boundary would otherwise make the posterior fit the model's error (more cuts, worse
-        predictions: measured on the benchmark, docs/learn.md).
+        posterior is sampled again with it, so that the posterior does not fit the table's own
+        error as if it were the tool's (on the benchmark the tables are off by a median ~8 % per
+        cut where the posterior lies, against a 3 % boundary: docs/learn.md).
     """
     t0 = time.perf_counter()
     coef: CuttingCoefficients = setup.material.cutting_coefficients
