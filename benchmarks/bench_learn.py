@@ -204,6 +204,12 @@ def summary(rows, sizes, base_sizes, n_held, log):
         worse = sum(r[f"acc_post_{n}"] < r["acc_prior"] for r in rows)
         log(f"posterior, {n} cuts: share of seeds >= 90 %: {share:.2f}; mean {np.mean([r[f'acc_post_{n}'] for r in rows]):.3f}; "
             f"worse than the prior in {worse} of {len(rows)}")
+    low = [r for r in rows if r["acc_prior"] < 0.85]
+    if low:
+        log(f"seeds where the prior is markedly lower (< 0.85): {len(low)}; prior median "
+            f"{np.median([r['acc_prior'] for r in low]):.3f}; posterior median "
+            + ", ".join(f"{n} cuts {np.median([r[f'acc_post_{n}'] for r in low]):.3f}" for n in sizes)
+            + "; logistic " + ", ".join(f"{n} cuts {np.median([r[f'acc_logit_{n}'] for r in low]):.3f}" for n in sizes))
     for name in ("logit", "knn"):
         need = [n for n in base_sizes if med(f"acc_{name}_{n}") >= 0.9]
         log(f"{name}: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(base_sizes)}")
