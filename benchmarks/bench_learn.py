@@ -19,13 +19,18 @@ Reports (medians over seeds):
   MRR at the production engagement;
 * speed: learning 40 cuts, predicting 1000.
 
-Run: ``PYTHONPATH=. python benchmarks/bench_learn.py [--seeds 20] [--quick]``.
+Run: ``PYTHONPATH=. python benchmarks/bench_learn.py [--seeds 20] [--quick]``. The README's numbers:
+two processes ``--seed-list 0 2 ... 18`` and ``1 3 ... 19`` with ``--sizes 20 40 --held 30 --no-speed
+--suggest-seeds 0 --save PART.pkl``, then ``--combine A.pkl B.pkl --sizes 20 40 --held 30``;
+``--seeds 0 --suggest-seeds 4``; ``--seeds 0 --speed``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import pickle
+import sys
 import time
 from dataclasses import replace
 
@@ -37,7 +42,10 @@ from planner.learn.posterior import PriorSD
 from planner.learn.predictive import predict_cuts, probability_lobes
 from planner.learn.suggest import suggest_cuts
 from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
-from planner.learn.tables import reference_limits
+from planner.learn.tables import default_workers, reference_limits
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _timing import median_time  # noqa: E402
 from planner.learn.update import learn
 
 RPM = (6000.0, 24000.0)
@@ -190,6 +198,42 @@ def suggest_vs_grid(seed, max_cuts, log):
     return grid_need, need
 
 
+def speed(repeats, log):
+    """Learn 40 cuts and predict 1000 (2 engagements x 50 speeds x 10 depths): median wall time of
+    ``repeats`` runs with the tables filled by one process and by the default worker count."""
+    rng = np.random.default_rng(99)
+    pr = tool_problem(u_prior=rng.uniform(-1.5, 1.5, 5) * PriorSD().log_sds(), rpm_range=RPM)
+    c40 = random_cuts(pr, 40, rng)
+    c40 = label(c40, true_limits(pr, c40.spindle_rpm, c40.radial_depth_m, c40.down), rng)
+    rr, aa, ee = np.meshgrid(np.linspace(*RPM, 50), np.geomspace(5e-4, 2e-2, 10), [0.1, 0.5], indexing="ij")
+    m = rr.size
+    grid = CutTable(rr.ravel(), aa.ravel(), ee.ravel() * pr.setup.tool.diameter_m, np.ones(m, bool), np.full(m, -1),
+                    np.ones(m), np.full(m, np.nan), np.zeros(m, bool))
+    saved = os.environ.get("ROBOMILL_WORKERS")
+    rows = {}
+    try:
+        for name, workers in (("1 process", "1"), (f"{default_workers()} processes", None)):
+            if workers is None:
+                os.environ.pop("ROBOMILL_WORKERS", None)
+            else:
+                os.environ["ROBOMILL_WORKERS"] = workers
+            t_learn, _, res = median_time(lambda: learn(pr.setup, pr.prior, c40), repeats)
+            t_pred, _, _ = median_time(lambda: predict_cuts(res.posterior, pr.setup, grid), repeats)
+            rows[name] = (t_learn, t_pred)
+    finally:
+        if saved is None:
+            os.environ.pop("ROBOMILL_WORKERS", None)
+        else:
+            os.environ["ROBOMILL_WORKERS"] = saved
+    log(f"\n## speed (median wall time of {repeats} runs)")
+    log("| | learn 40 cuts | predict 1000 cuts |")
+    log("|---|---|---|")
+    for name, (tl, tp) in rows.items():
+        log(f"| {name} | {tl:.1f} s | {tp:.1f} s |")
+    (l1, p1), (ln, pn) = rows.values()
+    log(f"| speed-up | {l1 / ln:.2f}x | {p1 / pn:.2f}x |")
+
+
 def summary(rows, sizes, base_sizes, n_held, log):
     """The tables of the README from per-seed rows (of one run, or of several saved runs)."""
     med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
@@ -257,6 +301,8 @@ def main(argv=None):
     ap.add_argument("--suggest-max-cuts", type=int, default=18)
     ap.add_argument("--suggest-first", type=int, default=0, help="first suggest seed (split a run over processes)")
     ap.add_argument("--no-speed", action="store_true", help="skip the speed runs (learn 40 cuts, predict 1000)")
+    ap.add_argument("--speed", action="store_true", help="the speed runs (also with --seeds 0)")
+    ap.add_argument("--speed-repeats", type=int, default=3)
     ap.add_argument("--save", default=None, help="pickle the per-seed rows here (to --combine runs of other processes)")
     ap.add_argument("--combine", nargs="+", default=None, help="only print the summary of these saved runs")
     ap.add_argument("--budget-s", type=float, default=np.inf,
@@ -283,24 +329,8 @@ def main(argv=None):
                 pickle.dump([{k: v for k, v in x.items() if k != "post"} for x in rows], fh)
     if rows:
         summary(rows, args.sizes, base_sizes, args.held, log)
-    if rows and not args.no_speed:
-        # speed of --predict 1000 cuts (a grid: 2 engagements x 50 speeds x 10 depths)
-        r0, prob = rows[-1], last_prob
-        rr, aa, ee = np.meshgrid(np.linspace(*RPM, 50), np.geomspace(5e-4, 2e-2, 10), [0.1, 0.5], indexing="ij")
-        m = rr.size
-        grid = CutTable(rr.ravel(), aa.ravel(), ee.ravel() * prob.setup.tool.diameter_m, np.ones(m, bool),
-                        np.full(m, -1), np.ones(m), np.full(m, np.nan), np.zeros(m, bool))
-        t0 = time.perf_counter()
-        predict_cuts(r0["post"].posterior, prob.setup, grid)
-        log(f"predict 1000 cuts (2 engagements x 50 speeds x 10 depths): {time.perf_counter() - t0:.1f} s")
-        # 40 cuts
-        rng = np.random.default_rng(99)
-        pr = tool_problem(u_prior=rng.uniform(-1.5, 1.5, 5) * PriorSD().log_sds(), rpm_range=RPM)
-        c40 = random_cuts(pr, 40, rng)
-        c40 = label(c40, true_limits(pr, c40.spindle_rpm, c40.radial_depth_m, c40.down), rng)
-        t0 = time.perf_counter()
-        learn(pr.setup, pr.prior, c40)
-        log(f"learn 40 cuts: {time.perf_counter() - t0:.1f} s")
+    if args.speed or (rows and not args.no_speed):
+        speed(args.speed_repeats, log)
     if args.suggest_seeds:
         log("\n## --suggest vs a grid of test cuts (cuts to a stable cut within 5 % of the best stable MRR)")
         log("| seed | grid | suggest |")
