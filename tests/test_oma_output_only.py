@@ -255,22 +255,38 @@ def test_real_hurco_accelerations_identified_but_not_trusted_without_coefficient
         assert not (np.min(np.abs(lines / f - 1)) < 0.005 and z < 0.01)
 
 
-def test_whittle_likelihood_gradient_matches_finite_differences():
+@pytest.mark.parametrize("noise,n_residual", [(True, 0), (False, 6), (True, 6)])
+def test_whittle_likelihood_gradient_and_fisher_match_finite_differences(noise, n_residual):
     """The ML refinement's analytic gradient (frequency, damping, direction, input and background
-    covariances) against central differences of the likelihood itself."""
+    covariances, with and without the residual terms of out-of-band modes) against central
+    differences of the likelihood, and its Fisher information against ``Re sum tr(S^-1 dS_i
+    S^-1 dS_j)`` with ``dS`` by central differences of the spectrum."""
     from oma.output_only import ml
 
     rng = np.random.default_rng(3)
-    m, l, k = 2, 3, 60
+    m, l, k = 2, 3, 40
     w = 2 * np.pi * np.linspace(8.0, 12.5, k)
-    gain = (w / w.mean()) ** 4
+    mod = ml._Model(m, l, w, (w / w.mean()) ** 4, ml._residual_columns(w, l)[:, :, :n_residual], noise,
+                    (np.array([10.0, 10.5]), np.array([0.05, 0.05])))
     x = rng.normal(size=(k, l)) + 1j * rng.normal(size=(k, l))
-    ref = (np.array([10.0, 10.5]), np.array([0.05, 0.05]))
-    p = 0.5 * rng.normal(size=2 * m + m * l + 3 + 6)
-    p[2 * m + m * l:2 * m + m * l + 3] += [1.0, 0.0, 1.0]
-    p[-6:] += [1.0, 0.0, 1.0, 0.0, 0.0, 1.0]
-    _, grad = ml._nll(p, m, l, w, gain, x, ref)
+    mq = m + n_residual
+    nc = mq * (mq + 1) // 2
+    p = 0.5 * rng.normal(size=2 * m + m * l + nc + (6 if noise else 0))
+    p[2 * m + m * l:2 * m + m * l + nc] += np.eye(mq)[np.tril_indices(mq)]
+    if noise:
+        p[-6:] += [1.0, 0.0, 1.0, 0.0, 0.0, 1.0]
+    _, grad = ml._nll(p, mod, x)
     h = 1e-6
-    num = np.array([(ml._nll(p + e, m, l, w, gain, x, ref)[0] - ml._nll(p - e, m, l, w, gain, x, ref)[0]) / (2 * h)
-                    for e in np.eye(p.size) * h])
+    steps = np.eye(p.size) * h
+    num = np.array([(ml._nll(p + e, mod, x)[0] - ml._nll(p - e, mod, x)[0]) / (2 * h) for e in steps])
     np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-6 * np.max(np.abs(num)))
+
+    def spectrum(q):
+        pp = ml._unpack(q, mod)
+        v = ml._columns(pp, mod)[1]
+        return mod.gain[:, None, None] * (v @ pp.c @ np.conj(np.swapaxes(v, 1, 2))) + pp.n[None]
+
+    sinv = np.linalg.inv(spectrum(p))
+    ds = [(spectrum(p + e) - spectrum(p - e)) / (2 * h) for e in steps]
+    ref = np.array([[np.real(np.einsum("kab,kbc,kcd,kda->", sinv, a, sinv, b)) for b in ds] for a in ds])
+    np.testing.assert_allclose(ml._fisher(p, mod), ref, rtol=1e-6, atol=1e-7 * np.max(np.abs(ref)))
