@@ -29,6 +29,8 @@ __all__ = ["refine_modes_ml"]
 #: Fisher-scoring iterations of the refits without one mode (:func:`refine_modes_ml` ``evidence``;
 #: started from the full fit's other modes, they converge in a few).
 EVIDENCE_ITER = 10
+#: Fisher-scoring steps taken with one evaluation of the information matrix.
+FISHER_REUSE = 3
 
 
 def _tril(n):
@@ -220,8 +222,13 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
     val, g = _nll(p, mod, x)
     lam = 1e-3
     n_modal = 2 * mod.m + mod.m * mod.l
+    jm, age = None, 0
     for it in range(max_iter):
-        jm = _fisher(p, mod)
+        # the information changes slowly near the optimum: recomputed every FISHER_REUSE steps
+        # (and after a rejected step)
+        if jm is None or age >= FISHER_REUSE or it == warm:
+            jm, age = _fisher(p, mod), 0
+        age += 1
         free = np.arange(p.size) if it >= warm else np.arange(n_modal, p.size)
         jf = jm[np.ix_(free, free)]
         diag = np.maximum(np.diag(jf), 1e-12)
@@ -233,6 +240,10 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
             if v2 <= val:
                 break
             lam *= 10.0
+            if age > 1:
+                jm, age = _fisher(p, mod), 1
+                jf = jm[np.ix_(free, free)]
+                diag = np.maximum(np.diag(jf), 1e-12)
             if lam > 1e8:
                 if it < warm:
                     break
@@ -383,6 +394,27 @@ def _nested_start(prev: _Model, p, mod: _Model):
     return out if np.all(np.isfinite(out)) else None
 
 
+def _without_mode(p, mod: _Model, j: int):
+    """The model without mode ``j`` and its parameters giving the spectrum of ``p`` less that
+    mode's term (its row and column of ``C`` dropped): the start of the refit without it."""
+    pp = _unpack(p, mod)
+    m, l = mod.m, mod.l
+    rest = np.delete(np.arange(m), j)
+    new = mod._replace(m=m - 1, ref=(mod.ref[0][rest], mod.ref[1][rest]))
+    keep = np.delete(np.arange(m + mod.q), j)
+    c = pp.c[np.ix_(keep, keep)]
+    if c.size:
+        ev, vec = np.linalg.eigh(c)
+        lc = np.linalg.cholesky((vec * np.maximum(ev, 1e-9 * max(ev.max(), 1e-300))) @ vec.T)
+    else:
+        lc = c
+    vraw = p[2 * m:2 * m + m * l].reshape(m, l)[rest]
+    parts = [p[:m][rest], p[m:2 * m][rest], vraw.ravel(), lc[_free_c(new)]]
+    if mod.noise:
+        parts.append(pp.ln[_tril(l)])
+    return new, np.concatenate(parts)
+
+
 def _orthogonalised(u):
     """Symmetric (Loewdin) orthonormalisation of the columns of ``u``: ``u (u^T u)^(-1/2)``, the
     orthonormal set nearest to ``u`` that favours no column."""
@@ -444,8 +476,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     evidence : dict, optional
         Filled, for every mode of a group that was fitted, with ``index: (gain, penalty)``: the
         decrease of the group's negative log-likelihood that the mode brings (the group refitted
-        without it on the same bins) and the BIC penalty of its parameters,
-        ``0.5 n_par log(n_bins)`` (Schwarz 1978).
+        without it on the same bins, both with the richest tail model fitted) and the BIC penalty
+        of the mode's parameters, ``0.5 (l + 2) log(n_bins)`` (Schwarz 1978): the mode is
+        supported when the gain exceeds the penalty; an unsupported mode is dropped and its group
+        refitted without it (``evidence['dropped']``: the mask of the dropped modes).
     segments : sequence of (record, start, stop), optional
         Delete-one-segment jackknife: per segment, the record's samples ``start:stop`` zeroed
         (the rest scaled to the same power) and each group's estimate updated by Fisher scoring
@@ -509,21 +543,13 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             groups.append(cur); cur, cur_hi = [k], hi[k]
     groups.append(cur)
     lines = np.asarray(lines_hz, dtype=float).ravel()
-    for g in groups:
-        g = np.array(g)
-        w, x = _band_bins(ffts, lo[g].min(), hi[g].max(), lines, line_guard_hz)
-        if x.size == 0:
-            continue
-        # channels scaled to unit power in the group's band: a mode's direction there is not
-        # dominated by a channel that is loud elsewhere in the record (where a small error of the
-        # starting direction would be magnified)
-        scale = np.sqrt(np.mean(np.abs(x) ** 2, axis=0))
-        scale = np.where(scale > 0, scale, 1.0)
-        x = x / scale
-        ug = u0[:, g] / scale[:, None]
-        ug = ug / np.linalg.norm(ug, axis=0)
+    kinds = (False, "background", True) if residual_terms == "auto" else (residual_terms,)
+    dropped = np.zeros(f0.size, dtype=bool)
+
+    def fit_chain(g, w, x, ug):
+        """The group's fits along the nested tail models; the chosen one by BIC; None if none."""
         fits, prev = [], None
-        for r in ((False, "background", True) if residual_terms == "auto" else (residual_terms,)):
+        for r in kinds:
             # each richer model started from the last one's optimum (same spectrum, so its fit
             # can only improve the likelihood); the first from SSI's directions and, for close
             # modes, also from their symmetric orthogonalisation (SSI mixes the directions of
@@ -537,11 +563,52 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 fits.append(ft)
                 prev = (ft[5], ft[4])
         if not fits:
+            return None
+        # the tail model with the smallest BIC
+        return fits, min(fits, key=lambda ft: ft[3] + 0.5 * _n_params(ft[5]) * np.log(w.size))
+
+    for g in groups:
+        g = np.array(g)
+        band = (lo[g].min(), hi[g].max())
+        w, x = _band_bins(ffts, *band, lines, line_guard_hz)
+        if x.size == 0:
             continue
-        # the residual terms when they improve the likelihood by more than their BIC penalty
-        fit = min(fits, key=lambda ft: ft[3] + 0.5 * _n_params(ft[5]) * np.log(w.size))
+        # channels scaled to unit power in the group's band: a mode's direction there is not
+        # dominated by a channel that is loud elsewhere in the record (where a small error of the
+        # starting direction would be magnified)
+        scale = np.sqrt(np.mean(np.abs(x) ** 2, axis=0))
+        scale = np.where(scale > 0, scale, 1.0)
+        x = x / scale
+        ug = u0[:, g] / scale[:, None]
+        ug = ug / np.linalg.norm(ug, axis=0)
+        chain = fit_chain(g, w, x, ug)
+        if chain is None:
+            continue
+        fits, fit = chain
+        if evidence is not None:
+            # each mode against the group without it on the same bins, both with the richest tail
+            # model (coherent residual terms) when it was fitted: under a poorer tail model a
+            # spurious mode can stand in for the coherent tails; the penalty is that of the
+            # mode's own parameters (frequency, damping, direction, input variance). The refit
+            # without it starts from the fit less the mode's term: its gain errs on the high side.
+            ref_fit = next((ft for ft in fits if ft[5].q and ft[5].coherent), fit)
+            weak = np.zeros(g.size, dtype=bool)
+            for j, k in enumerate(g):
+                if ref_fit[5].m == 1 and not ref_fit[5].q and not ref_fit[5].noise:
+                    continue
+                mod0, p0 = _without_mode(ref_fit[4], ref_fit[5], j)
+                fun0 = _scoring(p0, mod0, x, max_iter=EVIDENCE_ITER, warm=0)[1]
+                if np.isfinite(fun0) and fun0 < 1e30:
+                    evidence[int(k)] = (float(fun0 - ref_fit[3]), 0.5 * (l + 2) * np.log(w.size))
+                    weak[j] = evidence[int(k)][0] < evidence[int(k)][1]
+            if np.any(weak):
+                dropped[g[weak]] = True
+                g, ug = g[~weak], ug[:, ~weak]
+                chain = fit_chain(g, w, x, ug) if g.size else None
+                if chain is None:
+                    continue
+                fits, fit = chain
         f, z, u, fun, px, mod = fit
-        use_residuals = False if mod.q == 0 else (True if mod.coherent else "background")
         if np.any(np.abs(f - f0[g]) > hw[g] / 2) or np.any(z > 0.5):
             continue
         f_out[g], z_out[g] = f, z
@@ -552,7 +619,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         if gapped:
             jm = _fisher(px, mod)
             for s_i, sp in enumerate(gapped):
-                xj = _band_bins(sp, lo[g].min(), hi[g].max(), lines, line_guard_hz)[1] / scale[None, :]
+                xj = _band_bins(sp, *band, lines, line_guard_hz)[1] / scale[None, :]
                 pj = _one_step(px, mod, xj, jm)
                 if pj is None:
                     continue
@@ -562,13 +629,6 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     ua, ub = uj * (dscale * scale)[None, :], u * (dscale * scale)[None, :]
                     cosine = np.abs(np.sum(ua * ub, axis=1)) / (np.linalg.norm(ua, axis=1) * np.linalg.norm(ub, axis=1))
                     reps[2, s_i, g] = np.arccos(np.minimum(cosine, 1.0))
-        if evidence is not None:
-            # each mode of the group against the group without it, on the same bins
-            for j, k in enumerate(g):
-                rest = np.delete(np.arange(g.size), j)
-                fit0 = _fit_group(w, x, f[rest], z[rest], u[rest].T, derivative, max_iter=EVIDENCE_ITER,
-                                  residuals=use_residuals)
-                fun0 = fit0[3] if fit0 is not None else (_background_nll(x) if rest.size == 0 else np.inf)
-                n_par = l + 2   # frequency, damping, direction (l - 1), its input variance
-                evidence[int(k)] = (float(fun0 - fun), 0.5 * n_par * np.log(w.size))
+    if evidence is not None:
+        evidence["dropped"] = dropped
     return f_out, z_out, u_out, ok, reps

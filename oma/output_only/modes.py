@@ -225,7 +225,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         [[_reweight(r, fs, derivative, d, lo) for r in raw] for d in ssi_derivatives]
     parts = [_band_modes(v, fs, edges[k], edges[k + 1], first=k == 0, last=k == len(edges) - 2,
                          cycles=cycles, lag_s=lag_s, max_order=max_order,
-                         n_segments=n_segments) for v in views for k in range(len(edges) - 1)]
+                         n_segments=n_segments, jackknife_now=len(views) == 1)
+             for v in views for k in range(len(edges) - 1)]
     f_all = np.concatenate([p[0] for p in parts])
     z_all = np.concatenate([p[1] for p in parts])
     shapes_all = np.hstack([p[2] for p in parts])
@@ -248,6 +249,11 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     harmonic = ~keep
     if len(views) > 1:
         keep &= _choose_views(sel.freq_hz, sel.damping_ratio, sel.support, view_all, keep)
+        # the SSI jackknife of the kept modes only, each in its own run
+        part_all = np.concatenate([np.full(p[0].size, i) for i, p in enumerate(parts)])[order_]
+        for i in np.unique(part_all[keep]):
+            ks = np.flatnonzero(keep & (part_all == i))
+            fse_all[ks], zse_all[ks], use_all[ks] = _ssi_jackknife(parts[i][8], sel.freq_hz[ks], sel.shapes[:, ks])
     # duplicates: two clusters of one mode (same frequency within 2 %, MAC > 0.9): keep the better supported
     order = np.argsort(-sel.support)
     for a_i, a in enumerate(order):
@@ -268,16 +274,17 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         ev = {} if ml_evidence else None
         out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
                          **(ml_options or {}))
-        # a mode whose likelihood gain is under its BIC penalty is not supported by the data
-        weak = np.array([k in ev and ev[k][0] < ev[k][1] for k in range(f_hat.size)]) if ev else \
-            np.zeros(f_hat.size, dtype=bool)
-        if np.any(weak):
-            for k in np.flatnonzero(weak):
-                warnings.append(f"stable SSI cluster at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
-                                f"{ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
-            f_hat, z_hat, shapes, support = f_hat[~weak], z_hat[~weak], shapes[:, ~weak], support[~weak]
-            f_se, z_se, u_se = f_se[~weak], z_se[~weak], u_se[~weak]
-            out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, **(ml_options or {}))
+        # a mode whose likelihood gain is under its BIC penalty is not supported by the data: the
+        # refinement dropped it and refitted its group without it
+        weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
+        for k in np.flatnonzero(weak):
+            warnings.append(f"stable SSI cluster at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
+                            f"{ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
+        keep_ = ~weak
+        out = (out[0][keep_], out[1][keep_], out[2][:, keep_], out[3][keep_],
+               None if out[4] is None else tuple(a[keep_] for a in out[4]))
+        f_hat, z_hat, shapes, support = f_hat[keep_], z_hat[keep_], shapes[:, keep_], support[keep_]
+        f_se, z_se, u_se = f_se[keep_], z_se[keep_], u_se[keep_]
         f_ssi, z_ssi = f_hat, z_hat
         f_hat, z_hat, ml_shapes, fitted, ses = out
         # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is
@@ -406,8 +413,10 @@ def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float
     return out.reshape(l, -1)
 
 
-def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order, n_segments):
-    """SSI-cov modes with jackknife errors in ``[lo, hi)`` (see :func:`output_only_modes`)."""
+def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order, n_segments, jackknife_now=True):
+    """SSI-cov modes with jackknife errors in ``[lo, hi)`` (see :func:`output_only_modes`); with
+    ``jackknife_now=False`` the errors are NaN and the last item (the segment correlations) lets
+    :func:`_ssi_jackknife` compute them later for the modes kept."""
     f_pass = (0.8 * lo, min(1.25 * hi, 0.45 * fs))
     q = max(int(np.floor(fs / (4.0 * f_pass[1]))), 1)
     fsd = fs / q
@@ -441,6 +450,20 @@ def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order,
     own = (sel.freq_hz >= lo) & ((sel.freq_hz < hi) | last)
     f_hat, z_hat, shapes, support = sel.freq_hz[own], sel.damping_ratio[own], sel.shapes[:, own], sel.support[own]
     n_seg = len(seg_w)
+    ctx = (seg_corr, seg_w, fsd, opts, scale)
+    if not jackknife_now:
+        nan = np.full(f_hat.size, np.nan)
+        return f_hat, z_hat, shapes * scale[:, None], support, nan, nan.copy(), n_seg, nan.copy(), ctx
+    f_se, z_se, u_se = _ssi_jackknife(ctx, f_hat, shapes * scale[:, None])
+    return f_hat, z_hat, shapes * scale[:, None], support, f_se, z_se, n_seg, u_se, ctx
+
+
+def _ssi_jackknife(ctx, f_hat, shapes):
+    """Delete-one-segment jackknife standard errors of frequency, damping and direction (rad) of
+    the SSI modes ``f_hat``, ``shapes`` (in the signal's unit) of one :func:`_band_modes` run."""
+    seg_corr, seg_w, fsd, opts, scale = ctx
+    shapes = np.asarray(shapes) / scale[:, None]
+    n_seg = len(seg_w)
     rep_f = np.full((n_seg, f_hat.size), np.nan)
     rep_z = np.full((n_seg, f_hat.size), np.nan)
     rep_u = np.full((n_seg, f_hat.size), np.nan)
@@ -459,4 +482,4 @@ def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order,
     # angle of each replicate's direction from the full estimate's, its jackknife spread (rad)
     u_se = np.array([np.sqrt((np.sum(np.isfinite(a)) - 1) / max(np.sum(np.isfinite(a)), 1) * np.nansum(a ** 2))
                      if np.sum(np.isfinite(a)) >= 3 else np.nan for a in rep_u.T])
-    return f_hat, z_hat, shapes * scale[:, None], support, f_se, z_se, n_seg, u_se
+    return f_se, z_se, u_se
