@@ -181,7 +181,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         Refine each spindle frequency from the response.
     integrate : {0, 1, 2}
         Integrate the residual this many times before SSI (frequency domain, high-pass at the
-        band's lower end).
+        band's lower end); SSI then runs on that one view (``ssi_derivatives`` is ignored) and
+        the refinement still on the residual as recorded.
     alias_up_to : float
         Spindle multiples up to this many times the sampling rate are removed where they fold
         into the band (:func:`remove_response_harmonics`); 0.5 (default): none.
