@@ -103,7 +103,8 @@ def match_frequency_only(freq, model):
     return idx, [j for j in range(len(freq)) if j not in used]
 
 
-def run_ours(case, seeds):
+def run_ours(case, seeds, options=None):
+    options = options or {}
     rows = []
     off = paper_like_material()
     c = off.cutting_coefficients
@@ -111,15 +112,16 @@ def run_ours(case, seeds):
     for s in seeds:
         rec, model = case_record(case, s)
         t0 = time.process_time()
-        res = identify_output_only([rec])
+        res = identify_output_only([rec], **options)
         cpu = time.process_time() - t0
         # the same record (true force from the right coefficients) with 10 %-high coefficients in its file
-        res_off = identify_output_only([replace(rec, material=off)])
+        res_off = identify_output_only([replace(rec, material=off)], **options)
         m = res.modes
         idx, false = match(m.freq_hz, m.directions, model)
         row = {"cpu": cpu, "n": m.n_modes, "false": len(false), "exact": len(false) == 0 and min(idx) >= 0,
                "false_hz": [float(m.freq_hz[j]) for j in false], "f": [], "z": [], "fcov": [], "zcov": [], "k": [],
-               "kcov": [], "k_off": [], "kcov_off": [], "found": [j >= 0 for j in idx], "flagged": []}
+               "kcov": [], "k_off": [], "kcov_off": [], "found": [j >= 0 for j in idx], "flagged": [],
+               "dropped": sum(w.startswith("stable SSI cluster at") for w in res.warnings)}
         idx_off, _ = match(res_off.modes.freq_hz, res_off.modes.directions, model)
         for k, j in enumerate(idx):
             if j < 0:
@@ -234,7 +236,8 @@ def summarise(case, rows, model):
     exact = np.mean([r["exact"] for r in rows])
     false = np.sum([r["false"] for r in rows])
     print(f"\n== {case}: {len(rows)} records; exactly the true modes in {exact:.0%}, false modes {false} "
-          f"({sorted({round(x, 1) for r in rows for x in r['false_hz']})[:8]}); CPU median "
+          f"({sorted({round(x, 1) for r in rows for x in r['false_hz']})[:8]}); SSI clusters dropped by the "
+          f"likelihood check {sum(r['dropped'] for r in rows)}; CPU median "
           f"{np.median([r['cpu'] for r in rows]):.2f} s, max {np.max([r['cpu'] for r in rows]):.2f} s")
     print(f"{'mode':>12} | found | f mean|e| % max % | zeta bias % sd % | f cov  zeta cov | k median|e| % max % "
           f"cov flagged | k (coef +10 %) median|e| % cov")
@@ -342,6 +345,7 @@ def main(argv=None):
     ap.add_argument("--peer-seeds", type=int, default=6)
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
     ap.add_argument("--no-hurco", action="store_true")
+    ap.add_argument("--ml-directions", action="store_true", help="report the ML refinement's directions")
     ap.add_argument("--hurco-files", type=int, default=None)
     ap.add_argument("--alias-up-to", type=float, default=4.0,
                     help="Hurco: fold spindle multiples up to this many times fs (0.5: no aliasing assumed)")
@@ -350,7 +354,7 @@ def main(argv=None):
 
     with single_threaded_blas():
         for case in args.cases if args.seeds else ():
-            rows = run_ours(case, range(args.seeds))
+            rows = run_ours(case, range(args.seeds), {"ml_directions": True} if args.ml_directions else None)
             model = EXTRA if case == "extra" else TRUTH
             summarise(case, rows, model)
             if args.peer_seeds:

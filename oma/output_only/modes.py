@@ -7,8 +7,9 @@ cut into ``n_segments`` contiguous segments whose output correlations are comput
 the correlation of the data; SSI-cov poles at every even order, stability and clustering
 (:mod:`oma.output_only.ssi`) give the modes. A cluster that sits on a milling line with almost no
 damping is a harmonic the regression left behind (a wandering spindle), not a mode: it is
-reported as such. The delete-one-segment jackknife (:mod:`oma.output_only.uncertainty`) gives
-the standard errors of frequency and damping.
+reported as such. SSI runs on two spectral tilts of the residual (acceleration and displacement)
+and each band keeps the view that resolves more modes. The delete-one-segment jackknife
+(:mod:`oma.output_only.uncertainty`) gives the standard errors of frequency and damping.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ HARMONIC_TOLERANCE = 0.005
 HARMONIC_MAX_DAMPING = 0.01
 #: See ``ml_refine`` in :func:`output_only_modes`.
 ML_MAX_SHIFT = 2.0
+#: Modes of different SSI views (``ssi_derivatives``) whose bands ``f (1 +- w zeta)`` overlap
+#: compete as one group (:func:`_choose_views`).
+VIEW_GROUP_WIDTH = 3.0
 
 
 def real_direction(shape) -> np.ndarray:
@@ -140,7 +144,9 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                       band_ratio: float | None = None, cycles: float = 2.0, lag_s: float | None = 0.12, max_order: int = 60, n_segments: int = 10, level: float = 0.95,
                       refine_harmonics: bool = True, integrate: int = 0,
                        fdd_directions: bool = False, alias_up_to: float = 0.5, ml_refine: bool = True,
-                       ml_directions: bool = False, derivative: int = 2) -> OutputOnlyModes:
+                       ml_directions: bool = False, derivative: int = 2,
+                       ssi_derivatives: tuple | None = (2, 0), ml_options: dict | None = None,
+                       ml_evidence: bool = True) -> OutputOnlyModes:
     """Modes, with jackknife intervals, from one or more response records of one pose.
 
     Parameters
@@ -175,7 +181,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         Refine each spindle frequency from the response.
     integrate : {0, 1, 2}
         Integrate the residual this many times before SSI (frequency domain, high-pass at the
-        band's lower end).
+        band's lower end); SSI then runs on that one view (``ssi_derivatives`` is ignored) and
+        the refinement still on the residual as recorded.
     alias_up_to : float
         Spindle multiples up to this many times the sampling rate are removed where they fold
         into the band (:func:`remove_response_harmonics`); 0.5 (default): none.
@@ -192,21 +199,37 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         more than :data:`ML_MAX_SHIFT` SSI standard errors from SSI's is taken for a misfit (one
         SSI mode for two true ones) and SSI's values are kept.
     ml_directions : bool
-        Report the refinement's directions too (default: SSI's; on the benchmark records the
-        refined directions did not scale the close X / Z pair better).
+        Report the refinement's directions too (default: SSI's; on 60 benchmark records the
+        refined ones scaled X and Y better where the close pair is well separated, but mixed the
+        pair in one record of the extra-mode case and let one wrong Z stiffness go unflagged).
     derivative : {0, 1, 2}
         The signals are displacement, velocity or acceleration (the refinement's spectrum model).
+    ssi_derivatives : tuple of int or None
+        SSI is run on the residual as each of these derivatives of the displacement (default:
+        acceleration and displacement, whatever was recorded) and, per group of overlapping
+        bands, the modes of the view that resolves the most of them are kept
+        (:func:`_choose_views`). The poles are the same in every view; the spectral tilt
+        (``w^4`` between the two) decides which weak modes stand out of SSI's estimation noise
+        (a 10.5 Hz mode 23 dB under a 70 Hz mode in the acceleration of its channel is lost in
+        acceleration and found in displacement). None: the signals as recorded only.
+    ml_options : dict, optional
+        Passed to :func:`oma.output_only.ml.refine_modes_ml` (e.g. ``residual_terms``).
+    ml_evidence : bool
+        With ``ml_refine``: every mode must raise the Whittle likelihood of its band by more
+        than the BIC penalty of its parameters (the group refitted without it, both with the
+        coherent tail model), else it is dropped with a warning.
     """
     signals = [np.array(s, dtype=float, ndmin=2) for s in signals]
     fs = float(sample_rate_hz)
     axes = ~np.all(np.isnan(signals[0]), axis=1)
     warnings: list[str] = []
     harmonics: list[ResponseHarmonics] = []
-    residuals = []
+    residuals, raw = [], []
     for s, rpm, z in zip(signals, spindle_rpm, teeth):
         rh = remove_response_harmonics(s[axes], fs, rpm, int(z), refine=refine_harmonics, alias_up_to=alias_up_to)
         harmonics.append(rh)
         res = rh.residual
+        raw.append(res)
         if integrate:
             res = integrate_frequency_domain(res, fs, order=integrate, highpass_hz=band_hz[0])
         residuals.append(res)
@@ -215,9 +238,12 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     while band_ratio is not None and edges[-1] * band_ratio < hi / 1.2:
         edges.append(edges[-1] * band_ratio)
     edges.append(hi)
-    parts = [_band_modes(residuals, fs, edges[k], edges[k + 1], first=k == 0, last=k == len(edges) - 2,
+    views = [residuals] if integrate or not ssi_derivatives else \
+        [[_reweight(r, fs, derivative, d, lo) for r in raw] for d in ssi_derivatives]
+    parts = [_band_modes(v, fs, edges[k], edges[k + 1], first=k == 0, last=k == len(edges) - 2,
                          cycles=cycles, lag_s=lag_s, max_order=max_order,
-                         n_segments=n_segments) for k in range(len(edges) - 1)]
+                         n_segments=n_segments, jackknife_now=len(views) == 1)
+             for v in views for k in range(len(edges) - 1)]
     f_all = np.concatenate([p[0] for p in parts])
     z_all = np.concatenate([p[1] for p in parts])
     shapes_all = np.hstack([p[2] for p in parts])
@@ -227,15 +253,24 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     n_seg = min(p[6] for p in parts)
     band = (lo, hi)
     use_all = np.concatenate([p[7] for p in parts])
+    view_all = np.concatenate([np.full(p[0].size, i // (len(edges) - 1)) for i, p in enumerate(parts)])
     sel = StabilisedModes(f_all, z_all, shapes_all, sup_all, tuple(range(f_all.size)))
     order_ = np.argsort(f_all)
-    fse_all, zse_all, use_all = fse_all[order_], zse_all[order_], use_all[order_]
+    fse_all, zse_all, use_all, view_all = fse_all[order_], zse_all[order_], use_all[order_], view_all[order_]
     keep = np.ones(sel.n_modes, dtype=bool)
     lines = np.concatenate([h.freq_hz for h in harmonics]) if harmonics else np.zeros(0)
     for k in range(sel.n_modes):
         if lines.size and np.min(np.abs(lines / sel.freq_hz[k] - 1.0)) < HARMONIC_TOLERANCE \
                 and sel.damping_ratio[k] < HARMONIC_MAX_DAMPING:
             keep[k] = False
+    harmonic = ~keep
+    if len(views) > 1:
+        keep &= _choose_views(sel.freq_hz, sel.damping_ratio, sel.support, view_all, keep)
+        # the SSI jackknife of the kept modes only, each in its own run
+        part_all = np.concatenate([np.full(p[0].size, i) for i, p in enumerate(parts)])[order_]
+        for i in np.unique(part_all[keep]):
+            ks = np.flatnonzero(keep & (part_all == i))
+            fse_all[ks], zse_all[ks], use_all[ks] = _ssi_jackknife(parts[i][8], sel.freq_hz[ks], sel.shapes[:, ks])
     # duplicates: two clusters of one mode (same frequency within 2 %, MAC > 0.9): keep the better supported
     order = np.argsort(-sel.support)
     for a_i, a in enumerate(order):
@@ -245,21 +280,35 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
             if keep[b] and abs(sel.freq_hz[b] / sel.freq_hz[a] - 1.0) < 0.02 \
                     and mac(sel.shapes[:, a:a + 1], sel.shapes[:, b:b + 1])[0, 0] > 0.9:
                 keep[b] = False
-    rejected = sel.freq_hz[~keep]
+    rejected = sel.freq_hz[harmonic]
     f_hat, z_hat, shapes, support = sel.freq_hz[keep], sel.damping_ratio[keep], sel.shapes[:, keep], sel.support[keep]
     f_se, z_se, u_se = fse_all[keep], zse_all[keep], use_all[keep]
     if n_seg < 3:
         warnings.append("record too short for the segment jackknife: no intervals")
     if fdd_directions and f_hat.size:
-        shapes = _fdd_shapes(residuals, fs, f_hat, z_hat, shapes)
+        shapes = _fdd_shapes(raw, fs, f_hat, z_hat, shapes)
     if ml_refine and f_hat.size:
-        f_hat, z_hat, ml_shapes, ses = _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments)
-        f_ssi, z_ssi = sel.freq_hz[keep], sel.damping_ratio[keep]
+        ev = {} if ml_evidence else None
+        out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
+                         **(ml_options or {}))
+        # a mode whose likelihood gain is under its BIC penalty is not supported by the data: the
+        # refinement dropped it and refitted its group without it
+        weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
+        for k in np.flatnonzero(weak):
+            warnings.append(f"stable SSI cluster at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
+                            f"{ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
+        keep_ = ~weak
+        out = (out[0][keep_], out[1][keep_], out[2][:, keep_], out[3][keep_],
+               None if out[4] is None else tuple(a[keep_] for a in out[4]))
+        f_hat, z_hat, shapes, support = f_hat[keep_], z_hat[keep_], shapes[:, keep_], support[keep_]
+        f_se, z_se, u_se = f_se[keep_], z_se[keep_], u_se[keep_]
+        f_ssi, z_ssi = f_hat, z_hat
+        f_hat, z_hat, ml_shapes, fitted, ses = out
         # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is
         # taken for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept
         moved = np.abs(f_hat - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
-        f_hat, z_hat = np.where(moved, f_ssi, f_hat), np.where(moved, z_ssi, z_hat)
-        fitted = f_hat != f_ssi     # a group whose fit failed keeps SSI's values and errors
+        fitted = fitted & ~moved    # a group whose fit failed keeps SSI's values and errors
+        f_hat, z_hat = np.where(fitted, f_hat, f_ssi), np.where(fitted, z_hat, z_ssi)
         if ses is not None:
             f_se, z_se = (np.where(fitted, new, old) for new, old in zip(ses[:2], (f_se, z_se)))
         if ml_directions:
@@ -277,52 +326,88 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     )
 
 
-def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments):
+def _choose_views(freq_hz, damping, support, view, valid, *, width: float = VIEW_GROUP_WIDTH):
+    """Per group of modes whose bands ``f (1 +- width zeta)`` overlap (over all views), keep the
+    modes of the one view that resolves the most of them (ties: the larger summed support).
+
+    Each view is a self-consistent SSI model; the spectral tilt decides which weak modes stand
+    out of its estimation noise, so the view with more modes in a band has seen one the other
+    lost, while mixing clusters of different views would count one mode twice (close modes are
+    tilted differently in each view, so a per-pair MAC test misses such duplicates)."""
+    out = np.zeros(freq_hz.size, dtype=bool)
+    idx = np.flatnonzero(valid)
+    if idx.size == 0:
+        return out
+    lo = freq_hz * (1 - width * damping)
+    hi = freq_hz * (1 + width * damping)
+    order = idx[np.argsort(lo[idx])]
+    groups, cur, cur_hi = [], [order[0]], hi[order[0]]
+    for k in order[1:]:
+        if lo[k] <= cur_hi:
+            cur.append(k)
+            cur_hi = max(cur_hi, hi[k])
+        else:
+            groups.append(cur)
+            cur, cur_hi = [k], hi[k]
+    groups.append(cur)
+    for g in groups:
+        g = np.array(g)
+        best = max(np.unique(view[g]), key=lambda v: (np.sum(view[g] == v), np.sum(support[g][view[g] == v])))
+        out[g[view[g] == best]] = True
+    return out
+
+
+def _reweight(x, fs, from_derivative, to_derivative, highpass_hz):
+    """``x`` (a displacement, velocity or acceleration: ``from_derivative`` 0, 1, 2) as the
+    ``to_derivative``-th derivative of the displacement: its spectrum times ``(i w)^(to - from)``
+    (lines below ``highpass_hz`` and DC zeroed when integrating). The modes' poles and directions
+    are the same in every view; only the spectral tilt (``w^4`` between displacement and
+    acceleration) changes which modes stand out of SSI's estimation noise."""
+    k = int(to_derivative) - int(from_derivative)
+    if k == 0:
+        return x
+    if k < 0:
+        return integrate_frequency_domain(x, fs, order=-k, highpass_hz=highpass_hz) if k >= -2 else \
+            _reweight(integrate_frequency_domain(x, fs, order=2, highpass_hz=highpass_hz), fs, 0, k + 2, highpass_hz)
+    spec = np.fft.rfft(x, axis=-1)
+    w = 2 * np.pi * np.fft.rfftfreq(x.shape[-1], 1.0 / fs)
+    return np.fft.irfft(spec * (1j * w) ** k, n=x.shape[-1], axis=-1)
+
+
+def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=None, **options):
     """Whittle-ML refinement (:func:`oma.output_only.ml.refine_modes_ml`) in unit-variance channels,
-    and its delete-one-segment jackknife (the same segments as SSI's, each refit started from the
-    full-record optimum; a deleted segment is zeroed and the periodogram normalised by the samples
-    left). Returns frequency, damping, shapes, and the jackknife standard errors of the three
-    (None where the jackknife could not run)."""
+    and its delete-one-segment jackknife (the same segments as SSI's; per segment the refinement
+    is updated from the full-record optimum). Returns frequency, damping, shapes, the fitted
+    mask and the jackknife standard errors of frequency, damping and direction (None where the
+    jackknife could not run)."""
     ch = np.sqrt(np.mean(np.concatenate([r for r in residuals], axis=1) ** 2, axis=1))
     ch = np.where(ch > 0, ch, 1.0)
     unit = [r / ch[:, None] for r in residuals]
-    u0 = np.array([real_direction(shapes[:, k] / ch) for k in range(f_hat.size)]).T
-    f, z, u = refine_modes_ml(unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines)
-    out = np.array(shapes, dtype=complex)
-    for k in range(f_hat.size):
-        if np.any(u[:, k] != u0[:, k]):
-            v = u[:, k] * ch
-            out[:, k] = v / np.linalg.norm(v) * np.linalg.norm(shapes[:, k])
+    # real directions in the signal's unit first (rotating a complex shape to real after scaling the
+    # channels would weigh its phase by the loudest channel), then in unit-variance channels
+    u0 = np.array([real_direction(shapes[:, k]) / ch for k in range(f_hat.size)]).T.reshape(ch.size, -1)
+    u0 = u0 / np.maximum(np.linalg.norm(u0, axis=0), np.finfo(float).tiny)
     total = sum(r.shape[1] for r in unit)
     cuts = []
     for i, r in enumerate(unit):
         bounds = segment_bounds(r.shape[1], max(int(round(n_segments * r.shape[1] / total)), 1))
         cuts += [(i, a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-    if len(cuts) < 3:
-        return f, z, out, None
-    rep = np.full((3, len(cuts), f_hat.size), np.nan)
-    dirs = lambda uu: uu * ch[:, None] / np.linalg.norm(uu * ch[:, None], axis=0)
-    u_full = dirs(u)
-    for j, (i, a, b) in enumerate(cuts):
-        gapped = []
-        for i2, r in enumerate(unit):
-            if i2 == i:
-                r = r.copy()
-                r[:, a:b] = 0.0
-                r *= np.sqrt(r.shape[1] / max(r.shape[1] - (b - a), 1))
-            gapped.append(r)
-        fj, zj, uj = refine_modes_ml(gapped, fs, f, z, u, derivative=derivative, lines_hz=lines, failed=np.nan,
-                                     scoring_only=True)
-        rep[0, j], rep[1, j] = fj, zj
-        cosine = np.abs(np.sum(dirs(uj) * u_full, axis=0))
-        rep[2, j] = np.arccos(np.minimum(cosine, 1.0))
+    f, z, u, fitted, rep = refine_modes_ml(unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines,
+                                           segments=cuts if len(cuts) >= 3 else None, evidence=evidence,
+                                           direction_scale=ch, **options)
+    out = np.array(shapes, dtype=complex)
+    for k in np.flatnonzero(fitted):
+        v = u[:, k] * ch
+        out[:, k] = v / np.linalg.norm(v) * np.linalg.norm(shapes[:, k])
+    if rep is None:
+        return f, z, out, fitted, None
+    # the jackknife spread of the direction's angle from the full-record one (rad)
     f_se = jackknife(rep[0])[1]
     z_se = jackknife(rep[1])[1]
     a = rep[2]
-    fin = np.isfinite(a)
-    cnt = fin.sum(axis=0)
+    cnt = np.isfinite(a).sum(axis=0)
     u_se = np.where(cnt >= 3, np.sqrt((cnt - 1) / np.maximum(cnt, 1) * np.nansum(a ** 2, axis=0)), np.nan)
-    return f, z, out, (f_se, z_se, u_se)
+    return f, z, out, fitted, (f_se, z_se, u_se)
 
 
 def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float = 2.0):
@@ -344,8 +429,10 @@ def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float
     return out.reshape(l, -1)
 
 
-def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order, n_segments):
-    """SSI-cov modes with jackknife errors in ``[lo, hi)`` (see :func:`output_only_modes`)."""
+def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order, n_segments, jackknife_now=True):
+    """SSI-cov modes with jackknife errors in ``[lo, hi)`` (see :func:`output_only_modes`); with
+    ``jackknife_now=False`` the errors are NaN and the last item (the segment correlations) lets
+    :func:`_ssi_jackknife` compute them later for the modes kept."""
     f_pass = (0.8 * lo, min(1.25 * hi, 0.45 * fs))
     q = max(int(np.floor(fs / (4.0 * f_pass[1]))), 1)
     fsd = fs / q
@@ -379,6 +466,20 @@ def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order,
     own = (sel.freq_hz >= lo) & ((sel.freq_hz < hi) | last)
     f_hat, z_hat, shapes, support = sel.freq_hz[own], sel.damping_ratio[own], sel.shapes[:, own], sel.support[own]
     n_seg = len(seg_w)
+    ctx = (seg_corr, seg_w, fsd, opts, scale)
+    if not jackknife_now:
+        nan = np.full(f_hat.size, np.nan)
+        return f_hat, z_hat, shapes * scale[:, None], support, nan, nan.copy(), n_seg, nan.copy(), ctx
+    f_se, z_se, u_se = _ssi_jackknife(ctx, f_hat, shapes * scale[:, None])
+    return f_hat, z_hat, shapes * scale[:, None], support, f_se, z_se, n_seg, u_se, ctx
+
+
+def _ssi_jackknife(ctx, f_hat, shapes):
+    """Delete-one-segment jackknife standard errors of frequency, damping and direction (rad) of
+    the SSI modes ``f_hat``, ``shapes`` (in the signal's unit) of one :func:`_band_modes` run."""
+    seg_corr, seg_w, fsd, opts, scale = ctx
+    shapes = np.asarray(shapes) / scale[:, None]
+    n_seg = len(seg_w)
     rep_f = np.full((n_seg, f_hat.size), np.nan)
     rep_z = np.full((n_seg, f_hat.size), np.nan)
     rep_u = np.full((n_seg, f_hat.size), np.nan)
@@ -397,4 +498,4 @@ def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order,
     # angle of each replicate's direction from the full estimate's, its jackknife spread (rad)
     u_se = np.array([np.sqrt((np.sum(np.isfinite(a)) - 1) / max(np.sum(np.isfinite(a)), 1) * np.nansum(a ** 2))
                      if np.sum(np.isfinite(a)) >= 3 else np.nan for a in rep_u.T])
-    return f_hat, z_hat, shapes * scale[:, None], support, f_se, z_se, n_seg, u_se
+    return f_se, z_se, u_se

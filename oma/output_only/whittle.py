@@ -1,0 +1,195 @@
+"""The Whittle likelihood of the output-only modal spectrum model, its analytic gradient and
+Fisher information (:mod:`oma.output_only.ml` fits it; see there for the model and its
+references). Parameters: frequencies ``f0 (1 + zeta0 p_f)``, damping ``exp(p_z)``, raw direction
+vectors (normalised), and the free entries of the Cholesky factors of the input covariance
+``C`` (modes, then residual terms) and of the constant background ``N``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__: list[str] = []
+
+
+def _tril(n):
+    return np.tril_indices(n)
+
+
+class _Model(NamedTuple):
+    """What a group's likelihood is evaluated on: ``m`` free modes, ``l`` channels, the bins'
+    angular frequencies ``w`` (K,), the derivative gain ``w^(2d)`` normalised to mean 1, the fixed
+    residual columns ``fx`` (K, l, q) (:func:`_residual_columns`; q = 0: none), whether a
+    constant background ``N`` is fitted, the reference ``(f0, zeta0)`` of the parametrisation, and
+    whether the residual terms' input may correlate with the modes' (``coherent``; else ``C`` is
+    block diagonal and the residual terms are a frequency-dependent background)."""
+
+    m: int
+    l: int
+    w: np.ndarray
+    gain: np.ndarray
+    fx: np.ndarray
+    noise: bool
+    ref: tuple
+    coherent: bool = True
+
+    @property
+    def q(self) -> int:
+        return int(self.fx.shape[2])
+
+
+class _Params(NamedTuple):
+    """The decoded parameter vector: frequencies ``f`` (m,), damping ``z`` (m,), unit directions
+    ``u`` (m, l) and the norms ``norm`` (m,) of their raw vectors, the Cholesky factors ``lc``
+    (m + q, m + q) and ``ln`` (l, l) of the input covariance ``c`` (modes and residual terms) and
+    the background ``n``, and the index sets ``tm``, ``tl`` of those factors' free entries."""
+
+    f: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+    norm: np.ndarray
+    lc: np.ndarray
+    ln: np.ndarray
+    c: np.ndarray
+    n: np.ndarray
+    tm: tuple
+    tl: tuple
+
+
+def _free_c(mod: _Model):
+    """Free entries of the Cholesky factor of ``C``: all of its lower triangle, or without the
+    block coupling the residual terms to the modes (then ``C`` is block diagonal)."""
+    tm = _tril(mod.m + mod.q)
+    if mod.coherent or mod.q == 0:
+        return tm
+    keep = ~((tm[0] >= mod.m) & (tm[1] < mod.m))
+    return tm[0][keep], tm[1][keep]
+
+
+def _unpack(p, mod: _Model) -> _Params:
+    """Decode ``p``: ``f0 (1 + zeta0 p_f)``, ``exp(p_z)``, raw directions, the two Cholesky factors."""
+    f0, z0 = mod.ref
+    m, l, mq = mod.m, mod.l, mod.m + mod.q
+    i = 0
+    f = f0 * (1.0 + z0 * p[i:i + m]); i += m
+    z = np.exp(np.minimum(p[i:i + m], 30.0)); i += m
+    vraw = p[i:i + m * l].reshape(m, l); i += m * l
+    norm = np.maximum(np.linalg.norm(vraw, axis=1), 1e-300)
+    tm = _free_c(mod)
+    tl = _tril(l) if mod.noise else (np.zeros(0, dtype=int), np.zeros(0, dtype=int))
+    lc = np.zeros((mq, mq)); lc[tm] = p[i:i + tm[0].size]; i += tm[0].size
+    ln = np.zeros((l, l)); ln[tl] = p[i:i + tl[0].size]
+    return _Params(f, z, vraw / norm[:, None], norm, lc, ln, lc @ lc.T, ln @ ln.T, tm, tl)
+
+
+def _response(f, z, z0, w):
+    """Normalised inverse modal response ``(1 - (w/w_r)^2 + 2 i zeta w/w_r) / (2 zeta0)``, shape
+    (K, m) (the response ``1/d`` peaks at about 1: the input covariance is O(1), which the
+    optimiser needs)."""
+    q = w[:, None] / (2 * np.pi * f[None, :])
+    return (1.0 - q ** 2 + 2j * z[None, :] * q) / (2 * z0[None, :])
+
+
+def _residual_columns(w, l):
+    """Residual terms of the modes outside the band, in displacement: ``(w_c / w)^2`` per channel
+    (modes below: mass lines) and ``1`` per channel (modes above: stiffness lines), (K, l, 2 l).
+    Their input covariance is fitted jointly with the modes' (the same white force drives the
+    modes in the band and the tails of those outside, so the tails are coherent with the band's
+    modes: a constant background cannot represent that)."""
+    wc = np.sqrt(w.min() * w.max())
+    eye = np.eye(l)
+    lo = (wc / w)[:, None, None] ** 2 * eye[None]
+    return np.concatenate([lo, np.broadcast_to(eye, lo.shape)], axis=2).astype(complex)
+
+
+def _columns(pp: _Params, mod: _Model):
+    """``d`` (K, m) and the spectrum's columns ``V`` (K, l, m + q): modes then residual terms."""
+    d = _response(pp.f, pp.z, mod.ref[1], mod.w)
+    v = pp.u.T[None, :, :] / d[:, None, :]
+    return d, (np.concatenate([v, mod.fx], axis=2) if mod.q else v)
+
+
+def _nll(p, mod: _Model, x):
+    """Whittle negative log-likelihood and its gradient (analytic) in the parameters ``p``."""
+    f0, z0 = mod.ref
+    m, gain = mod.m, mod.gain
+    pp = _unpack(p, mod)
+    f, z, u, norm, lc, ln, c, n, tm, tl = pp
+    q = mod.w[:, None] / (2 * np.pi * f[None, :])
+    d, v = _columns(pp, mod)
+    vh = np.conj(np.swapaxes(v, 1, 2))
+    s = gain[:, None, None] * (v @ c @ vh) + n[None]
+    try:
+        chol = np.linalg.cholesky(s)
+    except np.linalg.LinAlgError:
+        return 1e30, np.zeros_like(p)
+    diag = np.real(np.diagonal(chol, axis1=1, axis2=2))
+    if not np.all(diag > 0) or not np.all(np.isfinite(diag)):
+        return 1e30, np.zeros_like(p)
+    logdet = 2.0 * np.sum(np.log(diag))
+    sinv = np.linalg.inv(s)
+    y = (sinv @ x[:, :, None])[..., 0]
+    val = float(logdet + np.real(np.sum(np.conj(x) * y)))
+    gmat = sinv - y[:, :, None] * np.conj(y)[:, None, :]                   # dL/dS^T, Hermitian
+    a = gain[:, None, None] * (vh @ gmat @ v)                              # (K, m+q, m+q)
+    b = gain[:, None, None] * (c[None] @ vh @ gmat)[:, :m]                 # (K, m, l)
+    grad = np.zeros_like(p)
+    bu = np.einsum("kra,ra->kr", b, u)                                     # (K, m)
+    dd = -bu / d ** 2                                                      # dL/dd (times 2 Re)
+    dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :])
+    dd_dz = 2j * q / (2 * z0[None, :])
+    grad[:m] = 2 * np.real(np.sum(dd * dd_df, axis=0)) * f0 * z0
+    grad[m:2 * m] = 2 * np.real(np.sum(dd * dd_dz, axis=0)) * z
+    gv = 2 * np.real(np.sum(b / d[:, :, None], axis=0))                   # (m, l) dL/du
+    gv = (gv - np.sum(gv * u, axis=1, keepdims=True) * u) / norm[:, None]
+    i = 2 * m + m * mod.l
+    grad[2 * m:i] = gv.ravel()
+    ar = np.real(np.sum(a, axis=0))
+    ar = 0.5 * (ar + ar.T)
+    grad[i:i + tm[0].size] = (2 * ar @ lc)[tm]
+    if mod.noise:
+        gr = np.real(np.sum(gmat, axis=0))
+        gr = 0.5 * (gr + gr.T)
+        grad[i + tm[0].size:] = (2 * gr @ ln)[tl]
+    return val, grad
+
+
+def _fisher(p, mod: _Model):
+    """Fisher information of the Whittle likelihood, ``J_ij = Re sum_k tr(S^-1 dS_i S^-1 dS_j)``.
+
+    Every ``dS_i`` has the form ``X Y^H + Y X^H`` (a column of ``V`` or of a Cholesky factor
+    changing); with ``S = L L^H`` the whitened ``A_i = L^-1 dS_i L^-H`` give ``J = Re(A^H A)``."""
+    f0, z0 = mod.ref
+    m, l, gain = mod.m, mod.l, mod.gain
+    pp = _unpack(p, mod)
+    f, z, u, norm, lc, ln, c, n, tm, tl = pp
+    q = mod.w[:, None] / (2 * np.pi * f[None, :])
+    d, v = _columns(pp, mod)
+    vh = np.conj(np.swapaxes(v, 1, 2))
+    s = gain[:, None, None] * (v @ c @ vh) + n[None]
+    linv = np.linalg.inv(np.linalg.cholesky(s))                            # (K, l, l)
+    vc = v @ c
+    g = np.sqrt(gain)[None, :, None]
+    dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :]) * (f0 * z0)[None, :]
+    dd_dz = 2j * q / (2 * z0[None, :]) * z[None, :]
+    xs, ys = [], []
+    for dd in (dd_df, dd_dz):
+        xs.append(np.moveaxis(-v[:, :, :m] * (dd / d)[:, None, :], 2, 0) * g)
+        ys.append(np.moveaxis(vc[:, :, :m], 2, 0) * g)
+    du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]     # (m, a, j)
+    xs.append((du[:, :, None, :] / d.T[:, None, :, None]).reshape(m * l, mod.w.size, l) * g)
+    ys.append(np.repeat(np.moveaxis(vc[:, :, :m], 2, 0), l, axis=0) * g)
+    vl = v @ lc
+    xs.append(np.moveaxis(v[:, :, tm[0]], 2, 0) * g)
+    ys.append(np.moveaxis(vl[:, :, tm[1]], 2, 0) * g)
+    if tl[0].size:
+        k = mod.w.size
+        xs.append(np.broadcast_to(np.eye(l)[tl[0]][:, None, :], (tl[0].size, k, l)).astype(complex))
+        ys.append(np.broadcast_to(ln[:, tl[1]].T[:, None, :], (tl[0].size, k, l)).astype(complex))
+    xw = np.einsum("kab,pkb->pka", linv, np.concatenate(xs))
+    yw = np.einsum("kab,pkb->pka", linv, np.concatenate(ys))
+    amat = xw[..., :, None] * np.conj(yw[..., None, :])
+    amat = (amat + np.conj(np.swapaxes(amat, -1, -2))).reshape(amat.shape[0], -1)
+    return np.real(np.conj(amat) @ amat.T)
