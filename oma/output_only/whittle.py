@@ -111,16 +111,22 @@ def _columns(pp: _Params, mod: _Model):
     return d, (np.concatenate([v, mod.fx], axis=2) if mod.q else v)
 
 
+def _spectrum(p, mod: _Model):
+    """The decoded parameters, ``q = w / w_r`` (K, m), ``d``, ``V``, ``V^H`` and the model
+    spectral matrix ``S`` (K, l, l) at the parameters ``p``."""
+    pp = _unpack(p, mod)
+    q = mod.w[:, None] / (2 * np.pi * pp.f[None, :])
+    d, v = _columns(pp, mod)
+    vh = np.conj(np.swapaxes(v, 1, 2))
+    return pp, q, d, v, vh, mod.gain[:, None, None] * (v @ pp.c @ vh) + pp.n[None]
+
+
 def _nll(p, mod: _Model, x):
     """Whittle negative log-likelihood and its gradient (analytic) in the parameters ``p``."""
     f0, z0 = mod.ref
     m, gain = mod.m, mod.gain
-    pp = _unpack(p, mod)
+    pp, q, d, v, vh, s = _spectrum(p, mod)
     f, z, u, norm, lc, ln, c, n, tm, tl = pp
-    q = mod.w[:, None] / (2 * np.pi * f[None, :])
-    d, v = _columns(pp, mod)
-    vh = np.conj(np.swapaxes(v, 1, 2))
-    s = gain[:, None, None] * (v @ c @ vh) + n[None]
     try:
         chol = np.linalg.cholesky(s)
     except np.linalg.LinAlgError:
@@ -163,12 +169,8 @@ def _fisher(p, mod: _Model):
     changing); with ``S = L L^H`` the whitened ``A_i = L^-1 dS_i L^-H`` give ``J = Re(A^H A)``."""
     f0, z0 = mod.ref
     m, l, gain = mod.m, mod.l, mod.gain
-    pp = _unpack(p, mod)
+    pp, q, d, v, vh, s = _spectrum(p, mod)
     f, z, u, norm, lc, ln, c, n, tm, tl = pp
-    q = mod.w[:, None] / (2 * np.pi * f[None, :])
-    d, v = _columns(pp, mod)
-    vh = np.conj(np.swapaxes(v, 1, 2))
-    s = gain[:, None, None] * (v @ c @ vh) + n[None]
     linv = np.linalg.inv(np.linalg.cholesky(s))                            # (K, l, l)
     vc = v @ c
     g = np.sqrt(gain)[None, :, None]
