@@ -127,15 +127,15 @@ def _nll(p, mod: _Model, x):
     m, gain = mod.m, mod.gain
     pp, q, d, v, vh, s = _spectrum(p, mod)
     f, z, u, norm, lc, ln, c, n, tm, tl = pp
-    try:
+    try:  # a singular model spectrum (a Cholesky factor that exists, an inverse that does not) is no fit
         chol = np.linalg.cholesky(s)
+        sinv = np.linalg.inv(s)
     except np.linalg.LinAlgError:
         return 1e30, np.zeros_like(p)
     diag = np.real(np.diagonal(chol, axis1=1, axis2=2))
     if not np.all(diag > 0) or not np.all(np.isfinite(diag)):
         return 1e30, np.zeros_like(p)
     logdet = 2.0 * np.sum(np.log(diag))
-    sinv = np.linalg.inv(s)
     y = (sinv @ x[:, :, None])[..., 0]
     val = float(logdet + np.real(np.sum(np.conj(x) * y)))
     gmat = sinv - y[:, :, None] * np.conj(y)[:, None, :]                   # dL/dS^T, Hermitian
