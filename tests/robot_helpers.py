@@ -33,6 +33,29 @@ joints:
   damping_ratio: [0.05, 0.05, 0.05, 0.05, 0.05, 0.05]
 """
 
+#: Columns of a part-frame toolpath CSV (formats.md), without joint angles.
+TOOLPATH_HEADER = "x_m,y_m,z_m,spindle_rpm,feed_per_tooth_m,radial_depth_m,axial_depth_m,milling"
+
+_TOOLPATH_YAML = """\
+format: robomill-toolpath/1
+robot: {robot}
+workpiece_frame: {{origin_m: {origin}, rpy_deg: {rpy}}}
+tool: {{teeth: 2, diameter_m: 0.0254, helix_deg: 30.0}}
+material:
+  name: acetal
+  cutting_coefficients: {{Ktc_N_m2: 1.2e8, Krc_N_m2: 4.5e7, Kac_N_m2: 2.0e7, Kte_N_m: 2000.0, Kre_N_m: 3000.0,
+    Kae_N_m: 500.0}}
+tool_axis: [0.0, 0.0, 1.0]
+limits: {limits}
+points: path.csv
+"""
+
+
+def toolpath_yaml(robot: str, *, origin_m, rpy_deg, limits: str) -> str:
+    """A part-frame toolpath file (acetal, the 2-flute 25.4 mm tool) on ``robot``, its points in
+    ``path.csv``; ``limits`` is the YAML flow mapping of its limits."""
+    return _TOOLPATH_YAML.format(robot=robot, origin=list(origin_m), rpy=list(rpy_deg), limits=limits)
+
 
 def shared_dir() -> Path:
     """The shared data directory (``$ROBOMILL_SHARED`` or ``<repo>/../shared``); raises with a

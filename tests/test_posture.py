@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from robot_helpers import JOINTS_YAML, ROBOT_YAML, urdf_path  # noqa: E402
+from robot_helpers import JOINTS_YAML, ROBOT_YAML, TOOLPATH_HEADER, toolpath_yaml, urdf_path  # noqa: E402
 
 from planner.check import check_toolpath  # noqa: E402
 from planner.cli import main  # noqa: E402
@@ -25,20 +25,8 @@ from planner.robot import forward_kinematics, read_robot, tool_axis  # noqa: E40
 from planner.robot.posture import choose_posture, constant_rotation_margins  # noqa: E402
 from planner.toolpath_io import read_toolpath  # noqa: E402
 
-TOOLPATH_YAML = """\
-format: robomill-toolpath/1
-robot: {robot}
-workpiece_frame: {{origin_m: [1.2, 0.0, 0.4], rpy_deg: [0, 0, 0]}}
-tool: {{teeth: 2, diameter_m: 0.0254, helix_deg: 30.0}}
-material:
-  name: acetal
-  cutting_coefficients: {{Ktc_N_m2: 1.2e8, Krc_N_m2: 4.5e7, Kac_N_m2: 2.0e7, Kte_N_m: 2000.0, Kre_N_m: 3000.0,
-    Kae_N_m: 500.0}}
-tool_axis: [0.0, 0.0, 1.0]
-limits: {{stability_margin: 0.8}}
-points: path.csv
-"""
-HEADER = "x_m,y_m,z_m,spindle_rpm,feed_per_tooth_m,radial_depth_m,axial_depth_m,milling"
+# the workpiece frame and limits of the toolpath files of these tests
+PATH_OPTIONS = dict(origin_m=[1.2, 0.0, 0.4], rpy_deg=[0, 0, 0], limits="{stability_margin: 0.8}")
 
 
 def offset_robot(directory, *, stiffness=True, name="robot.yaml") -> Path:
@@ -54,13 +42,13 @@ def offset_robot(directory, *, stiffness=True, name="robot.yaml") -> Path:
 def cell(tmp_path_factory):
     d = tmp_path_factory.mktemp("posture")
     offset_robot(d)
-    (d / "path.yaml").write_text(TOOLPATH_YAML.format(robot="robot.yaml"))
+    (d / "path.yaml").write_text(toolpath_yaml("robot.yaml", **PATH_OPTIONS))
     # an L-shaped path: along +y, then along +x (the feed turns, and the reference with it)
     y = np.linspace(-0.2, 0.1, 12)
     x = np.linspace(0.0, 0.15, 7)[1:]
     pts = [(0.0, float(v)) for v in y] + [(float(u), 0.1) for u in x]
     rows = [f"{px!r},{py!r},0.0,2700,0.0005,0.006,0.012,down" for px, py in pts]
-    (d / "path.csv").write_text(HEADER + "\n" + "\n".join(rows) + "\n")
+    (d / "path.csv").write_text(TOOLPATH_HEADER + "\n" + "\n".join(rows) + "\n")
     return d, read_robot(d / "robot.yaml"), read_toolpath(d / "path.yaml")
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from robot_helpers import write_robot_file  # noqa: E402
+from robot_helpers import TOOLPATH_HEADER, toolpath_yaml, write_robot_file  # noqa: E402
 
 from oma.errors import ToolpathError  # noqa: E402
 from oma.modal_io import read_modal_model  # noqa: E402
@@ -29,30 +29,19 @@ from planner.toolpath_io import read_toolpath, write_toolpath  # noqa: E402
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "kr500_acetal"
 
-TOOLPATH_YAML = """\
-format: robomill-toolpath/1
-robot: {robot}
-workpiece_frame: {{origin_m: [1.5, 0.2, 0.5], rpy_deg: [0, 0, 30]}}
-tool: {{teeth: 2, diameter_m: 0.0254, helix_deg: 30.0}}
-material:
-  name: acetal
-  cutting_coefficients: {{Ktc_N_m2: 1.2e8, Krc_N_m2: 4.5e7, Kac_N_m2: 2.0e7, Kte_N_m: 2000.0, Kre_N_m: 3000.0,
-    Kae_N_m: 500.0}}
-tool_axis: [0.0, 0.0, 1.0]
-limits: {{stability_margin: 0.8, surface_location_error_m: 0.0003}}
-points: path.csv
-"""
-HEADER = "x_m,y_m,z_m,spindle_rpm,feed_per_tooth_m,radial_depth_m,axial_depth_m,milling"
+# the workpiece frame and limits of the toolpath files of these tests
+PATH_OPTIONS = dict(origin_m=[1.5, 0.2, 0.5], rpy_deg=[0, 0, 30],
+                    limits="{stability_margin: 0.8, surface_location_error_m: 0.0003}")
 
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
     d = tmp_path_factory.mktemp("cell")
     robot_file = write_robot_file(d)
-    (d / "path.yaml").write_text(TOOLPATH_YAML.format(robot=robot_file.name))
+    (d / "path.yaml").write_text(toolpath_yaml(robot_file.name, **PATH_OPTIONS))
     y = np.linspace(-0.2, 0.2, 9)
     rows = [f"0.0,{float(v)!r},0.0,2700,0.0005,0.006,0.006,down" for v in y]
-    (d / "path.csv").write_text(HEADER + "\n" + "\n".join(rows) + "\n")
+    (d / "path.csv").write_text(TOOLPATH_HEADER + "\n" + "\n".join(rows) + "\n")
     return d, read_robot(robot_file), read_toolpath(d / "path.yaml")
 
 
@@ -75,19 +64,19 @@ def test_toolpath_with_robot_reads_and_round_trips(cell, tmp_path):
 
 
 @pytest.mark.parametrize("yaml_extra, csv_text, match", [
-    ("", HEADER + ",tool_rotation_deg\n0,0,0,2700,0.0005,0.006,0.006,down,0\n0,1,0,2700,0.0005,0.006,0.006,down,0\n",
+    ("", TOOLPATH_HEADER + ",tool_rotation_deg\n0,0,0,2700,0.0005,0.006,0.006,down,0\n0,1,0,2700,0.0005,0.006,0.006,down,0\n",
      r"column tool_rotation_deg: expected a robot"),
-    ("", HEADER + "\n0,0,0,2700,0.0005,0.006,0.006,down\n0,1,0,2700,0.0005,0.006,0.006,down\n",
+    ("", TOOLPATH_HEADER + "\n0,0,0,2700,0.0005,0.006,0.006,down\n0,1,0,2700,0.0005,0.006,0.006,down\n",
      r"column q1_deg: expected a column q1_deg"),
-    ("robot: nothere.yaml\n", HEADER + "\n0,0,0,2700,0.0005,0.006,0.006,down\n0,1,0,2700,0.0005,0.006,0.006,down\n",
+    ("robot: nothere.yaml\n", TOOLPATH_HEADER + "\n0,0,0,2700,0.0005,0.006,0.006,down\n0,1,0,2700,0.0005,0.006,0.006,down\n",
      r"robot: expected a robomill-robot/1 file .*no such file"),
-    ("robot: robot.yaml\n", "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg," + HEADER
+    ("robot: robot.yaml\n", "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg," + TOOLPATH_HEADER
      + "\n0,0,0,0,0,nan,0,0,0,2700,0.0005,0.006,0.006,down\n" + "0," * 6 + "0,1,0,2700,0.0005,0.006,0.006,down\n",
      r"row 1, column q6_deg: expected a finite number \(or all six"),
 ])
 def test_toolpath_robot_errors(tmp_path, yaml_extra, csv_text, match):
     write_robot_file(tmp_path)
-    text = TOOLPATH_YAML.format(robot="x").replace("robot: x\n", yaml_extra)
+    text = toolpath_yaml("x", **PATH_OPTIONS).replace("robot: x\n", yaml_extra)
     (tmp_path / "p.yaml").write_text(text)
     (tmp_path / "path.csv").write_text(csv_text)
     with pytest.raises(ToolpathError, match=match):
@@ -193,7 +182,7 @@ def test_cli_check_robot(cell, tmp_path, capsys):
     # a toolpath with neither a robot nor --models
     plain = tmp_path / "plain.yaml"
     plain.write_text((d / "path.yaml").read_text().replace("robot: robot.yaml\n", ""))
-    (tmp_path / "path.csv").write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg," + HEADER + "\n"
+    (tmp_path / "path.csv").write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg," + TOOLPATH_HEADER + "\n"
                                        + "".join(f"0,-90,90,0,30,0,0.0,{y},0.0,2700,0.0005,0.006,0.006,down\n"
                                                  for y in (0.0, 0.1)))
     assert main(["check", str(plain)]) == 2
