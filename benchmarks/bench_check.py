@@ -54,6 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _paths import resampled  # noqa: E402
 from _timing import median_time  # noqa: E402
 
 from oma.cutting import Cut  # noqa: E402
@@ -67,19 +68,6 @@ from stability.lobes import lobe_diagram, predict_point  # noqa: E402
 
 EXAMPLE = ROOT / "examples" / "kr500_acetal"
 N_POINTS = 100_000
-
-
-def resampled(base: Toolpath, n: int) -> Toolpath:
-    """The path resampled to ``n`` points (positions and joints interpolated; the planned cut of the
-    nearest original point)."""
-    t = np.linspace(0.0, base.n_points - 1.0, n)
-    k = np.arange(base.n_points)
-    near = np.rint(t).astype(int)
-    interp = lambda a: np.column_stack([np.interp(t, k, a[:, j]) for j in range(a.shape[1])])  # noqa: E731
-    return replace(base, positions_m=interp(base.positions_m), joints_deg=interp(base.joints_deg),
-                   spindle_rpm=base.spindle_rpm[near], feed_per_tooth_m=base.feed_per_tooth_m[near],
-                   radial_depth_m=base.radial_depth_m[near], axial_depth_m=base.axial_depth_m[near],
-                   milling=base.milling[near])
 
 
 def repeated(base: Toolpath, n: int) -> Toolpath:

@@ -41,6 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _paths import resampled as resample  # noqa: E402
 from _timing import median_time  # noqa: E402
 
 from oma.modal_io import read_modal_model  # noqa: E402
@@ -52,13 +53,8 @@ EXAMPLE = ROOT / "examples" / "kr500_acetal"
 
 
 def resampled(base, n):
-    t = np.linspace(0.0, base.n_points - 1.0, n)
-    k = np.arange(base.n_points)
-    near = np.rint(t).astype(int)
-    pos = np.column_stack([np.interp(t, k, base.positions_m[:, j]) for j in range(3)])
-    return replace(base, positions_m=pos, joints_deg=None, spindle_rpm=base.spindle_rpm[near],
-                   feed_per_tooth_m=base.feed_per_tooth_m[near], radial_depth_m=base.radial_depth_m[near],
-                   axial_depth_m=base.axial_depth_m[near], milling=base.milling[near])
+    """The path resampled to ``n`` points, without joint angles (the posture chooses them)."""
+    return replace(resample(base, n), joints_deg=None)
 
 
 OFFSET_ROBOT = """\
