@@ -42,7 +42,8 @@ from planner.learn.posterior import PriorSD
 from planner.learn.predictive import predict_cuts, probability_lobes
 from planner.learn.suggest import suggest_cuts
 from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
-from planner.learn.tables import default_workers, reference_limits
+from planner.learn.tables import reference_limits
+from planner.workers import default_workers
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _timing import median_time  # noqa: E402

@@ -24,13 +24,14 @@ put back in chunk order, so the assembled table does not depend on which worker 
 from __future__ import annotations
 
 import logging
-import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
 from oma.errors import InputError
+
+from ..workers import available_cores
 
 __all__ = ["SchedulerError", "Engine", "open_engine", "run_chunks", "default_workers", "WORKER_ENV"]
 
@@ -54,10 +55,7 @@ class SchedulerError(InputError):
 
 def default_workers() -> int:
     """Worker processes of the local cluster: the cores this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
+    return available_cores()
 
 
 def _call(fn, payload, chunk):

@@ -25,14 +25,14 @@ for a one-mode tool this is each mode's own parameters; for several modes it is 
 
 from __future__ import annotations
 
-import os
-import sys
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from oma.cutting import Cut, CuttingCoefficients, Tool
 from oma.modal import ModalModel
+
+from ..workers import default_workers, process_map
 
 __all__ = ["Grid", "LimitTable", "build_table", "direct_log_limits", "reference_limits", "MAX_DEPTH_M"]
 
@@ -212,18 +212,10 @@ def reference_limits(model: ModalModel, tool: Tool, cut: Cut, coefficients: Cutt
     return depth[inverse]
 
 
-def _node_log_limits(job) -> np.ndarray:
-    """``log`` limits of one table node: the reference structure with its damping scaled, the
-    coefficients with ``Krc`` scaled, at the lattice speeds."""
-    model, tool, cut, coefficients, log_zeta, log_ratio, rpm, how, sdm_steps = job
-    return np.log(reference_limits(scaled_model(model, log_zeta=log_zeta), tool, cut,
-                                   scaled_coefficients(coefficients, log_kr=log_ratio), rpm, method=how,
-                                   steps_per_mode_period=sdm_steps[0], min_steps=sdm_steps[1]))
-
-
-def _direct_log_limits(job) -> np.ndarray:
-    """``log`` limits of one parameter set (five log-multipliers ``u``) at cuts of one engagement,
-    computed directly (no table)."""
+def _log_limits_job(job) -> np.ndarray:
+    """``log`` limits of one parameter set (five log-multipliers ``u`` of the reference) at speeds
+    of one engagement, computed directly: a table node (damping and ratio factors only) or the
+    check of a table."""
     model, tool, cut, coefficients, u, rpm, how, sdm_steps = job
     return np.log(reference_limits(scaled_model(model, log_f=u[0], log_k=u[1], log_zeta=u[2]), tool, cut,
                                    scaled_coefficients(coefficients, log_kt=u[3], log_kr=u[4]), rpm, method=how,
@@ -251,40 +243,12 @@ def direct_log_limits(model: ModalModel, tool: Tool, base_cut: Cut, coefficients
             cut = replace(base_cut, radial_depth_m=float(a), milling="down" if d else "up")
             jobs.append((model, tool, cut, coefficients, u, rpm[cols], method_for(tool, float(a), method), steps))
             where.append((i, cols))
-    if workers is None:
+    if workers is None:  # its jobs solve a few speeds each: forking pays at fewer limits than for a table
         workers = default_workers() if samples.shape[0] * rpm.size >= PARALLEL_MIN_LIMITS / 4 else 1
     out = np.empty((samples.shape[0], rpm.size))
-    for (i, cols), val in zip(where, _map(_direct_log_limits, jobs, workers=workers)):
+    for (i, cols), val in zip(where, process_map(_log_limits_job, jobs, workers=workers)):
         out[i, cols] = val
     return out
-
-
-def default_workers() -> int:
-    """Processes for the tables: ``ROBOMILL_WORKERS`` if set, else the cores this process may use."""
-    env = os.environ.get("ROBOMILL_WORKERS", "").strip()
-    if env:
-        return max(1, int(env))
-    return max(1, len(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else max(1, os.cpu_count() or 1)
-
-
-def _map(fn, jobs: list, *, workers: int) -> list:
-    """``[fn(j) for j in jobs]``, over ``workers`` forked processes (each with one BLAS thread)
-    where the platform forks (Linux); in order."""
-    workers = min(int(workers), len(jobs))
-    if workers <= 1 or sys.platform != "linux":
-        return [fn(j) for j in jobs]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
-                             initializer=_one_blas_thread) as pool:
-        return list(pool.map(fn, jobs))
-
-
-def _one_blas_thread():
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(limits=1)
 
 
 def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients,
@@ -309,7 +273,7 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     method : {'sdm', 'zoa', 'auto'}
         See :func:`method_for`.
     workers : int, optional
-        Processes filling the table; by default :func:`default_workers`, or this process alone for
+        Processes filling the table; by default :func:`planner.workers.default_workers`, or this process alone for
         tables of fewer than ``PARALLEL_MIN_LIMITS`` limits. The values do not depend on it.
     """
     rpm = np.asarray(rpm, dtype=float).ravel()
@@ -328,12 +292,12 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
         cuts.append(replace(base_cut, radial_depth_m=float(a), milling="down" if d else "up"))
         hows.append(method_for(tool, float(a), method))
     # one job per (engagement, damping node, ratio node): independent SDM searches over the lattice
-    jobs = [(model, tool, cuts[g], coefficients, float(lz), float(lr), np.exp(lattices[g] * h), hows[g], grid.sdm_steps)
-            for g in range(len(cuts)) for lz in grid.log_zeta for lr in grid.log_ratio]
+    jobs = [(model, tool, cuts[g], coefficients, (0.0, 0.0, float(lz), 0.0, float(lr)), np.exp(lattices[g] * h), hows[g],
+             grid.sdm_steps) for g in range(len(cuts)) for lz in grid.log_zeta for lr in grid.log_ratio]
     work = sum(lattices[g].size for g in range(len(cuts))) * grid.log_zeta.size * grid.log_ratio.size
     if workers is None:
         workers = default_workers() if work >= PARALLEL_MIN_LIMITS else 1
-    results = iter(_map(_node_log_limits, jobs, workers=workers))
+    results = iter(process_map(_log_limits_job, jobs, workers=workers))
     tables = []
     for lat in lattices:
         val = np.empty((lat.size, grid.log_zeta.size, grid.log_ratio.size))
