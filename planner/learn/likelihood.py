@@ -53,11 +53,11 @@ class Likelihood:
         if not self.model_error >= 0:
             raise ValueError(f"model_error must be >= 0, found {self.model_error}")
 
-    def scale(self, model_error=None):
-        """Width of the soft boundary: ``boundary_scale`` and the forward model's error (per cut
-        when given, else ``model_error``) in quadrature."""
+    def scale(self, model_error=None, *, width=None):
+        """Width of the soft boundary (or of ``width``, e.g. ``uncertain_scale``): it and the
+        forward model's error (per cut when given, else ``model_error``) in quadrature."""
         e = self.model_error if model_error is None else np.asarray(model_error, dtype=float)
-        return np.hypot(self.boundary_scale, e)
+        return np.hypot(self.boundary_scale if width is None else width, e)
 
     def p_chatter(self, log_ratio, *, model_error=None) -> np.ndarray:
         """Chance the cut chatters, ``log_ratio = log(a / b)``."""
@@ -70,13 +70,12 @@ class Likelihood:
         weights (the tempering of uncertain marks is applied here, on top); ``model_error``
         (n_cuts,) the forward model's error at each cut (default ``self.model_error``).
         """
-        e = self.model_error if model_error is None else np.asarray(model_error, dtype=float)
-        x = np.asarray(log_ratio, dtype=float) / np.hypot(self.boundary_scale, e)
+        x = np.asarray(log_ratio, dtype=float) / self.scale(model_error)
         eps = self.mislabel
         # log(eps + (1 - 2 eps) sigma(x)) and log(eps + (1 - 2 eps) sigma(-x)), stably
         log_ch = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(x))
         log_st = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(-x))
-        z = np.asarray(log_ratio, dtype=float) / np.hypot(self.uncertain_scale, e)
+        z = np.asarray(log_ratio, dtype=float) / self.scale(model_error, width=self.uncertain_scale)
         log_un = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) - 0.5 * z * z)
         outcome = np.asarray(outcome)
         w = np.asarray(weight, dtype=float) * np.where(outcome == UNCERTAIN, self.uncertain_weight, 1.0)
