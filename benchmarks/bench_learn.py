@@ -36,7 +36,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from planner.learn.likelihood import STABLE
+from planner.learn.likelihood import STABLE, Likelihood
 from planner.learn.outcomes_io import CutTable
 from planner.learn.posterior import PriorSD
 from planner.learn.predictive import predict_cuts, probability_lobes
@@ -95,7 +95,7 @@ def acc(p, truth_stable):
 
 
 # ----------------------------------------------------------------------------------- one seed
-def run_seed(seed, sizes, base_sizes, n_held, log):
+def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Likelihood(), prior_scale=1.0):
     rng = np.random.default_rng(seed)
     sd = PriorSD().log_sds()
     u = rng.uniform(-1.5, 1.5, 5) * sd
@@ -103,7 +103,7 @@ def run_seed(seed, sizes, base_sizes, n_held, log):
     d = prob.setup.tool.diameter_m
     n_max = max(max(sizes), max(base_sizes))
     pool = random_cuts(prob, n_max, rng)
-    pool = label(pool, true_limits(prob, pool.spindle_rpm, pool.radial_depth_m, pool.down), rng, flip=0.05)
+    pool = label(pool, true_limits(prob, pool.spindle_rpm, pool.radial_depth_m, pool.down), rng, flip=flip)
     held = random_cuts(prob, n_held, np.random.default_rng(seed + 10_000))
     held_lim = true_limits(prob, held.spindle_rpm, held.radial_depth_m, held.down)
     truth = held.axial_depth_m < held_lim
@@ -124,7 +124,9 @@ def run_seed(seed, sizes, base_sizes, n_held, log):
            "boundary_prior_within_10": float(np.mean(np.abs(boundary_prior / boundary_truth - 1) < 0.10))}
     for n in sizes:
         t0 = time.perf_counter()
-        res = learn(prob.setup, prob.prior, subset(pool, n), seed=seed)
+        wide = PriorSD(*(prior_scale * getattr(PriorSD(), f) for f in ("frequency", "stiffness", "damping",
+                                                                         "coefficients")))
+        res = learn(prob.setup, prob.prior, subset(pool, n), seed=seed, likelihood=likelihood, prior_sd=wide)
         t_learn = time.perf_counter() - t0
         t0 = time.perf_counter()
         p = predict_cuts(res.posterior, prob.setup, held)
@@ -136,16 +138,22 @@ def run_seed(seed, sizes, base_sizes, n_held, log):
         out[f"table_error_{n}"] = float(np.median(res.model_error)) if res.model_error.size else float("nan")
         out[f"loo_{n}"] = (res.accuracy_before, res.accuracy_after)
         out[f"warn_{n}"] = len(res.warnings)
+        eps = res.posterior.mislabel_samples
+        out[f"mislabel_{n}"] = float(np.median(eps)) if eps.size else likelihood.mislabel
         out[f"p_held_{n}"], out["truth_held"] = p, truth
         lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=48)
         err = np.abs(lobes.quantiles[0.5] / boundary_truth - 1)
         out[f"boundary_median_err_{n}"] = float(np.median(err))
         out[f"boundary_within_10_{n}"] = float(np.mean(err < 0.10))
+        # is the posterior's own uncertainty honest? the truth inside its 5-95 % band, and the band's width
+        out[f"boundary_band_{n}"] = float(np.mean((lobes.quantiles[0.95] <= boundary_truth) &
+                                                  (boundary_truth <= lobes.quantiles[0.05])))
+        out[f"boundary_sd_{n}"] = float(np.median(np.std(np.log(lobes.limits), axis=0)))
         if n == max(sizes):
             out["post"] = res
         log(f"  seed {seed} n={n}: prior {out['acc_prior']:.2f} post {out[f'acc_post_{n}']:.2f} "
             f"learn {t_learn:.1f}s predict({held.n_cuts}) {t_pred:.1f}s cause {out[f'cause_{n}']} "
-            f"boundary err {out[f'boundary_median_err_{n}']:.3f}")
+            f"boundary err {out[f'boundary_median_err_{n}']:.3f} band {out[f'boundary_band_{n}']:.2f} eps {out[f'mislabel_{n}']:.3f}")
     for n in base_sizes:
         tr = subset(pool, n)
         out[f"acc_logit_{n}"] = acc(logistic(tr, held, d), truth)
@@ -267,6 +275,10 @@ def summary(rows, sizes, base_sizes, n_held, log):
         if f"boundary_median_err_{n}" in rows[0]:
             log(f"{n} cuts: median relative error {med(f'boundary_median_err_{n}'):.3f}; median share of speeds within "
                 f"10 %: {med(f'boundary_within_10_{n}'):.2f}")
+        if f"boundary_band_{n}" in rows[0]:
+            log(f"{n} cuts: the posterior's own log-limit sd (median over speeds and seeds) {med(f'boundary_sd_{n}'):.3f}; "
+                f"truth inside the 5-95 % band at {np.mean([r[f'boundary_band_{n}'] for r in rows]):.2f} of the speeds "
+                f"(mean over seeds; 0.90 if the band is honest)")
     for n in sizes:
         if f"p_held_{n}" not in rows[0]:
             continue
@@ -286,6 +298,8 @@ def summary(rows, sizes, base_sizes, n_held, log):
         if f"table_error_{n}" in rows[0]:
             log(f"table vs direct limits at posterior samples ({n} cuts): median over seeds of the cuts' median RMS log "
                 f"error {med(f'table_error_{n}'):.3f}")
+        if f"mislabel_{n}" in rows[0]:
+            log(f"learned mislabel rate ({n} cuts): median over seeds {med(f'mislabel_{n}'):.3f}")
         causes = [r[f"cause_{n}"] for r in rows]
         log(f"causes named ({n} cuts): " + ", ".join(f"{c}: {causes.count(c)}" for c in sorted(set(causes))))
 
@@ -298,6 +312,11 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="3 seeds, 20 cuts, 1 suggest seed")
     ap.add_argument("--sizes", type=int, nargs="+", default=[15, 30])
     ap.add_argument("--held", type=int, default=60)
+    ap.add_argument("--flip", type=float, default=0.05, help="share of the training marks flipped")
+    ap.add_argument("--prior-scale", type=float, default=1.0,
+                    help="the learner's prior sds this many times the ones the truth is drawn from (wide priors)")
+    ap.add_argument("--mislabel-sd", type=float, default=Likelihood().mislabel_sd,
+                    help="prior log-odds sd of the learned mislabel rate (0: fixed at 5 %%)")
     ap.add_argument("--suggest-seeds", type=int, default=4)
     ap.add_argument("--suggest-max-cuts", type=int, default=18)
     ap.add_argument("--suggest-first", type=int, default=0, help="first suggest seed (split a run over processes)")
@@ -323,7 +342,8 @@ def main(argv=None):
         if time.perf_counter() - t_all > args.budget_s:
             log(f"budget reached: {len(rows)} seeds done")
             break
-        r, last_prob = run_seed(seed, args.sizes, base_sizes, args.held, log)
+        r, last_prob = run_seed(seed, args.sizes, base_sizes, args.held, log, flip=args.flip,
+                                likelihood=Likelihood(mislabel_sd=args.mislabel_sd), prior_scale=args.prior_scale)
         rows.append(r)
         if args.save:
             with open(args.save, "wb") as fh:

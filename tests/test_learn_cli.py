@@ -60,6 +60,8 @@ def test_learn_writes_a_posterior_that_reads_back(files, capsys):
     p = [x["probability_stable"] for x in res["predictions"]]
     assert p[0] > 0.95 and p[1] < 0.05
     assert len(res["suggested"]) == 2 and all(s["outcome"] == "" for s in res["suggested"])
+    # the share of wrong marks is learned and reported with the rest, and the suspect marks listed
+    assert 0 < res["parameters"]["mislabel_rate"]["mean"] < 0.5 and isinstance(res["suspect_labels"], list)
     # the posterior file is an ordinary modal model for every reader (x_posterior ignored) ...
     model = read_modal_model(d / "post.yaml")
     assert model.n_modes == 1
@@ -123,6 +125,14 @@ def test_prior_sd_option(files, capsys, tmp_path):
     code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
                                  str(d / "cuts.csv"), "--prior-sd", "stifness=0.2"])
     assert code == 2 and "--prior-sd" in err
+
+
+@pytest.mark.parametrize("option,value", [("--mislabel", "0.5"), ("--mislabel", "-0.1"), ("--mislabel-sd", "-1")])
+def test_mislabel_options(files, capsys, tmp_path, option, value):
+    d, _ = files
+    code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
+                                 str(d / "cuts.csv"), option, value, "-o", str(tmp_path / "p.yaml")])
+    assert code == 2 and option in err and err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
 def test_read_cuts_detects_outcome_from_record(tmp_path):

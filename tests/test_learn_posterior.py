@@ -150,9 +150,13 @@ def test_learn_measures_the_error_of_its_table(problem):
     grid = Grid.around(PriorSD().log_sds()[0], 0.0, 0.0, sdm_steps=(10.0, 20))
     table = build_table(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients, cuts.spindle_rpm,
                         cuts.radial_depth_m, cuts.down, grid, workers=1)
-    fixed = learn(setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table, n_particles=500, seed=1)
+    # the rate of wrong marks fixed: these marks (a constant limit) fit no tool, and a learned rate lets the
+    # frequency spread past the table's range, where the clipped table is off for another reason
+    lk = Likelihood(mislabel_sd=0.0)
+    fixed = learn(setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table, n_particles=500, seed=1,
+                  likelihood=lk)
     free = learn(setup, problem.prior, cuts, free=("frequency", "stiffness", "damping"), table=table,
-                 n_particles=500, seed=1)
+                 n_particles=500, seed=1, likelihood=lk)
     assert fixed.model_error.shape == (cuts.n_cuts,) and np.all(fixed.model_error < 0.02)
     assert np.median(free.model_error) > 0.05
     assert free.posterior.likelihood.model_error == pytest.approx(np.sqrt(np.mean(free.model_error**2)))
@@ -179,10 +183,11 @@ def test_smc_matches_a_brute_force_grid_posterior(problem):
     lim = np.exp(table.log_limit(*[[x] for x in truth_u])[0])
     cuts = label(cuts, lim, rng)
     # validate=0: the check is of the sampler on the grid's own likelihood (no table-error widening)
-    res = learn(setup, problem.prior, cuts, free=free, table=table, n_particles=4000, seed=2, validate=0)
+    lk = Likelihood(mislabel_sd=0.0)  # the rate fixed: its own grid check is the next test
+    res = learn(setup, problem.prior, cuts, free=free, table=table, n_particles=4000, seed=2, validate=0,
+                likelihood=lk)
     s = res.posterior.samples
     # brute-force grid
-    lk = Likelihood()
     gf = np.linspace(-4.5 * sd[0], 4.5 * sd[0], 301)
     gk = np.linspace(-4.5 * sd[1], 4.5 * sd[1], 301)
     F, K = np.meshgrid(gf, gk, indexing="ij")
@@ -234,3 +239,85 @@ def test_fine_table_spanning_the_prior_interpolates_damping_and_ratio(problem, i
     errs = np.concatenate(errs)
     assert np.median(errs) < 0.015
     assert np.quantile(errs, 0.9) < 0.08
+
+
+def test_mislabel_rate_prior_and_per_sample_terms():
+    """The rate's logit-normal prior has its median at ``mislabel``; its mean by Gauss-Hermite
+    equals a Monte Carlo mean; per-sample rates give each row the scalar rate's terms."""
+    lk = Likelihood(mislabel=0.05, mislabel_sd=1.2)
+    assert lk.learns_mislabel and not Likelihood(mislabel_sd=0.0).learns_mislabel
+    assert float(lk.mislabel_rate(0.0)) == pytest.approx(0.05)
+    x = np.random.default_rng(0).standard_normal(400_000) * 1.2
+    r = lk.mislabel_rate(x)
+    m, sd = lk.mislabel_prior()
+    assert np.all((r > 0) & (r < 0.5))
+    assert m == pytest.approx(r.mean(), rel=0.01) and sd == pytest.approx(r.std(), rel=0.01)
+    ratio = np.array([[-0.3, 0.2, 0.01], [0.1, -0.05, 0.4]])
+    outcome, w = np.array([STABLE, CHATTER, UNCERTAIN]), np.ones(3)
+    eps = np.array([0.02, 0.3])
+    both = lk.log_terms(ratio, outcome, w, mislabel=eps[:, None])
+    for i in range(2):
+        np.testing.assert_allclose(both[i], replace(lk, mislabel=eps[i]).log_terms(ratio[i:i + 1], outcome, w)[0])
+    with pytest.raises(ValueError, match="mislabel_sd"):
+        Likelihood(mislabel_sd=-1.0)
+
+
+def _zoa_problem(problem, n, seed, flip, free=("frequency", "stiffness")):
+    """``n`` cuts labelled from the truth's own table value (an exactly specified model), a share
+    ``flip`` of the marks flipped; returns (cuts, table, flipped)."""
+    rng = np.random.default_rng(seed)
+    setup = problem.setup
+    cuts = random_cuts(problem, n, rng, immersions=(0.5, 1.0), depth_range=(0.5e-3, 20e-3))
+    sd = np.where([p in free for p in PARAMETERS], PriorSD().log_sds(), 0.0)
+    table = build_table(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients,
+                        cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, Grid.around(sd[0], 0.0, 0.0, span=4.5),
+                        method="zoa")
+    lim = np.exp(table.log_limit(*[[x] for x in (-0.08, 0.2, 0, 0, 0)])[0])
+    clean = label(cuts, lim, rng, flip=0.0)
+    marked = label(cuts, lim, rng, flip=flip)
+    return marked, table, marked.outcome != clean.outcome
+
+
+def test_smc_with_a_learned_mislabel_rate_matches_a_grid_posterior(problem):
+    """Frequency and the mislabel rate's coordinate free (25 cuts, 20 % flipped): the SMC
+    marginals against a 301 x 121 grid posterior, the tolerances of the test above."""
+    cuts, table, _ = _zoa_problem(problem, 25, 21, 0.2, free=("frequency",))
+    lk = Likelihood()
+    res = learn(problem.setup, problem.prior, cuts, free=("frequency",), table=table, n_particles=4000, seed=3,
+                validate=0, likelihood=lk)
+    sd_f = PriorSD().log_sds()[0]
+    gf, gx = np.linspace(-4.5 * sd_f, 4.5 * sd_f, 301), np.linspace(-4.5 * lk.mislabel_sd, 4.5 * lk.mislabel_sd, 121)
+    F, X = np.meshgrid(gf, gx, indexing="ij")
+    z = np.zeros(F.size)
+    lb = table.log_limit(F.ravel(), z, z, z, z)
+    ll = lk.log_terms(np.log(cuts.axial_depth_m)[None, :] - lb, cuts.outcome, cuts.weight,
+                      mislabel=lk.mislabel_rate(X.ravel())[:, None]).sum(axis=1)
+    lp = ll - 0.5 * ((F.ravel() / sd_f) ** 2 + (X.ravel() / lk.mislabel_sd) ** 2)
+    w = np.exp(lp - lp.max())
+    eps = res.posterior.mislabel_samples
+    for g, smp in ((F.ravel(), res.posterior.samples[:, 0]), (lk.mislabel_rate(X.ravel()), eps)):
+        m_g, s_g, q_g = _stats(g, w)
+        m_s, s_s, q_s = _stats(smp)
+        assert abs(m_s - m_g) < 0.1 * s_g, (m_s, m_g, s_g)
+        assert abs(s_s / s_g - 1) < 0.10, (s_s, s_g)
+        np.testing.assert_array_less(np.abs(q_s - q_g), 0.15 * s_g)
+
+
+@pytest.mark.parametrize("flip", [0.0, 0.3])
+def test_learn_finds_the_share_of_wrong_marks_and_which_they_are(problem, flip):
+    """40 cuts from an exactly specified model: with clean marks the learned rate stays low (median
+    under the prior's 5 %); with 30 % flipped its 90 % interval holds 0.3 and the fixed 5 % rate
+    would be outside it. The marks reported as suspect are mostly truly flipped (>= 75 %)."""
+    cuts, table, flipped = _zoa_problem(problem, 40, 31, flip)
+    res = learn(problem.setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table,
+                n_particles=2000, seed=4, validate=0)
+    eps = res.posterior.mislabel_samples
+    lo, med, hi = np.quantile(eps, [0.05, 0.5, 0.95])
+    info = res.to_dict()
+    assert info["parameters"]["mislabel_rate"]["mean"] == pytest.approx(eps.mean())
+    suspects = [s["index"] for s in info["suspect_labels"]]
+    if flip == 0:
+        assert med < 0.05 and not any("marks are noisy" in w for w in res.warnings)
+    else:
+        assert lo < flip < hi and lo > 0.05 and any("marks are noisy" in w for w in res.warnings)
+        assert len(suspects) >= 4 and np.mean(flipped[suspects]) >= 0.75, (suspects, np.flatnonzero(flipped))

@@ -46,6 +46,10 @@ def add_parsers(sub) -> None:
                    help="relative prior sds: frequency=0.10 stiffness=0.30 damping=0.50 coefficients=0.25")
     p.add_argument("--method", choices=["sdm", "auto", "zoa"], default="sdm",
                    help="stability method per cut (auto: SDM below ae/D = 0.2, ZOA above)")
+    p.add_argument("--mislabel", type=float, default=0.05, metavar="RATE",
+                   help="prior median of the share of wrong marks (learned from the cuts; default 0.05)")
+    p.add_argument("--mislabel-sd", type=float, default=1.2, metavar="SD",
+                   help="prior sd of that share's log-odds (default 1.2: 90 %% between 0.7 and 22 %%); 0 fixes it")
     p.add_argument("--samples", type=int, default=2000, help="posterior particles")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rpm", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
@@ -72,6 +76,7 @@ def _cmd_learn(args) -> int:
     from oma.modal_io import read_modal_model
     from stability.setup_io import read_setup
 
+    from .likelihood import Likelihood
     from .outcomes_io import read_cuts
     from .posterior_io import write_posterior_model
     from .predictive import predict_cuts, probability_lobes
@@ -84,6 +89,10 @@ def _cmd_learn(args) -> int:
         raise InputError(args.setup, "material.cutting_coefficients", "the prior cutting coefficients", "none")
     prior = read_modal_model(args.model)
     prior_sd = parse_prior_sd(args.prior_sd)
+    if not 0 <= args.mislabel < 0.5:
+        raise UsageError("--mislabel", "a share in [0, 0.5)", str(args.mislabel))
+    if not args.mislabel_sd >= 0:
+        raise UsageError("--mislabel-sd", "a log-odds sd >= 0", str(args.mislabel_sd))
     if args.samples < 100:
         raise UsageError("--samples", "at least 100", str(args.samples))
     if args.suggest is not None and not 1 <= args.suggest <= 100:
@@ -98,7 +107,7 @@ def _cmd_learn(args) -> int:
     rpm_range = _speed_range(args, setup, cuts)
 
     result = learn(setup, prior, cuts, prior_sd=prior_sd, n_particles=args.samples, seed=args.seed,
-                   method=args.method)
+                   method=args.method, likelihood=Likelihood(mislabel=args.mislabel, mislabel_sd=args.mislabel_sd))
     post = result.posterior
     payload = result.to_dict()
     payload["predictions"] = None

@@ -10,9 +10,16 @@ parameters are right (runout, feed variation, the operator's threshold). The for
 error (the tables' interpolation, measured by ``learn`` against direct SDM limits at posterior
 samples) adds in quadrature: per cut while learning, ``s_j = sqrt(s^2 + e_j^2)``, and its typical
 value ``model_error`` in predictions. A mark is wrong with
-probability ``mislabel`` (epsilon, default 0.05), whatever the cut did:
+probability ``eps`` (the mislabel rate), whatever the cut did:
 
     P(mark 'chatter') = eps + (1 - 2 eps) p_chatter,    P(mark 'stable') = 1 - P(mark 'chatter').
+
+The rate is learned with the rest (``learn``), not assumed: shops differ (operators disagree on a
+third of the cuts in some, a tool wears in a series), and a rate fixed too low makes a posterior
+confidently wrong when the marks are noisier. Its prior is logit-normal on ``(0, 0.5)``:
+``eps = 0.5 expit(logit(2 mislabel) + x)``, ``x ~ N(0, mislabel_sd^2)``, so ``mislabel`` (0.05) is
+the prior median and ``mislabel_sd`` (1.2) puts 90 % of the prior between 0.7 % and 22 %
+(``mislabel_sd = 0``: fixed at ``mislabel``).
 
 An ``uncertain`` mark says the cut was near the boundary (light marks, an operator not sure): its
 likelihood is ``eps + (1 - 2 eps) exp(-(log(a/b))^2 / (2 s_u^2))`` with ``s_u`` =
@@ -44,6 +51,7 @@ class Likelihood:
     uncertain_scale: float = 0.15
     uncertain_weight: float = 0.3
     model_error: float = 0.0
+    mislabel_sd: float = 1.2
 
     def __post_init__(self):
         if not 0 <= self.mislabel < 0.5:
@@ -52,6 +60,30 @@ class Likelihood:
             raise ValueError("boundary_scale and uncertain_scale must be > 0")
         if not self.model_error >= 0:
             raise ValueError(f"model_error must be >= 0, found {self.model_error}")
+        if not self.mislabel_sd >= 0:
+            raise ValueError(f"mislabel_sd must be >= 0, found {self.mislabel_sd}")
+
+    @property
+    def learns_mislabel(self) -> bool:
+        """Whether the mislabel rate is a learned parameter (else fixed at ``mislabel``)."""
+        return self.mislabel > 0 and self.mislabel_sd > 0
+
+    def mislabel_rate(self, x=0.0) -> np.ndarray:
+        """The mislabel rate at the prior's standardised-free coordinate ``x`` (its log-odds shift):
+        ``0.5 expit(logit(2 mislabel) + x)``; ``mislabel`` at ``x = 0``."""
+        if self.mislabel == 0:
+            return np.zeros(np.shape(x))
+        return 0.5 * expit(np.log(2 * self.mislabel / (1 - 2 * self.mislabel)) + np.asarray(x, dtype=float))
+
+    def mislabel_prior(self) -> tuple[float, float]:
+        """Mean and sd of the mislabel rate under its prior (Gauss-Hermite, 40 nodes)."""
+        if not self.learns_mislabel:
+            return float(self.mislabel), 0.0
+        z, w = np.polynomial.hermite_e.hermegauss(40)
+        r = self.mislabel_rate(self.mislabel_sd * z)
+        w = w / w.sum()
+        m = float(np.sum(w * r))
+        return m, float(np.sqrt(np.sum(w * (r - m) ** 2)))
 
     def scale(self, model_error=None, *, width=None):
         """Width of the soft boundary (or of ``width``, e.g. ``uncertain_scale``): it and the
@@ -63,20 +95,24 @@ class Likelihood:
         """Chance the cut chatters, ``log_ratio = log(a / b)``."""
         return expit(np.asarray(log_ratio) / self.scale(model_error))
 
-    def log_terms(self, log_ratio, outcome, weight, *, model_error=None) -> np.ndarray:
+    def log_terms(self, log_ratio, outcome, weight, *, model_error=None, mislabel=None) -> np.ndarray:
         """Weighted log-likelihood of each cut, shape of ``log_ratio`` (``(..., n_cuts)``).
 
         ``outcome`` (n_cuts,) holds STABLE, CHATTER or UNCERTAIN; ``weight`` (n_cuts,) the label
         weights (the tempering of uncertain marks is applied here, on top); ``model_error``
-        (n_cuts,) the forward model's error at each cut (default ``self.model_error``).
+        (n_cuts,) the forward model's error at each cut (default ``self.model_error``);
+        ``mislabel`` the mislabel rate, broadcast against ``log_ratio`` (e.g. one per sample,
+        shape ``(n_samples, 1)``; default ``self.mislabel``).
         """
         x = np.asarray(log_ratio, dtype=float) / self.scale(model_error)
-        eps = self.mislabel
+        eps = np.asarray(self.mislabel if mislabel is None else mislabel, dtype=float)
+        with np.errstate(divide="ignore"):
+            log_eps = np.log(eps)
         # log(eps + (1 - 2 eps) sigma(x)) and log(eps + (1 - 2 eps) sigma(-x)), stably
-        log_ch = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(x))
-        log_st = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) + log_expit(-x))
+        log_ch = np.logaddexp(log_eps, np.log1p(-2 * eps) + log_expit(x))
+        log_st = np.logaddexp(log_eps, np.log1p(-2 * eps) + log_expit(-x))
         z = np.asarray(log_ratio, dtype=float) / self.scale(model_error, width=self.uncertain_scale)
-        log_un = np.logaddexp(np.log(eps) if eps > 0 else -np.inf, np.log1p(-2 * eps) - 0.5 * z * z)
+        log_un = np.logaddexp(log_eps, np.log1p(-2 * eps) - 0.5 * z * z)
         outcome = np.asarray(outcome)
         w = np.asarray(weight, dtype=float) * np.where(outcome == UNCERTAIN, self.uncertain_weight, 1.0)
         terms = np.where(outcome == CHATTER, log_ch, np.where(outcome == STABLE, log_st, log_un))
@@ -85,4 +121,4 @@ class Likelihood:
     def to_dict(self) -> dict:
         return {"mislabel": self.mislabel, "boundary_scale": self.boundary_scale,
                 "uncertain_scale": self.uncertain_scale, "uncertain_weight": self.uncertain_weight,
-                "model_error": self.model_error}
+                "model_error": self.model_error, "mislabel_sd": self.mislabel_sd}

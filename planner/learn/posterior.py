@@ -157,6 +157,9 @@ class Posterior:
     method : str
         The stability method the samples were learned with (``sdm``, ``zoa``, ``auto``): whoever
         uses them computes limits the same way.
+    mislabel_samples : ndarray, shape (n_samples,)
+        The mislabel rate of each sample (learned with the rest, :mod:`.likelihood`); may be
+        empty when read from file (predictions do not use it).
     """
 
     reference: ModalModel
@@ -166,6 +169,7 @@ class Posterior:
     log_posterior: np.ndarray = field(default_factory=lambda: np.zeros(0))
     likelihood: Likelihood = Likelihood()
     method: str = "sdm"
+    mislabel_samples: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def map_index(self) -> int:
@@ -196,7 +200,8 @@ class Posterior:
         """Posterior mean and sd of each physical parameter, with the prior's value and sd.
 
         Per mode ``r``: ``natural_frequency_hz[r]``, ``stiffness_N_m[r]``, ``damping_ratio[r]``;
-        then ``Ktc_N_m2``, ``Krc_N_m2``. Also ``shift_in_prior_sd`` (posterior mean of the
+        then ``Ktc_N_m2``, ``Krc_N_m2``, and ``mislabel_rate`` when the samples carry it (its
+        ``prior`` is the prior's mean). Also ``shift_in_prior_sd`` (posterior mean of the
         log-multiplier over its prior sd) and ``sd_ratio`` (posterior over prior log-sd).
         """
         out = {}
@@ -208,6 +213,13 @@ class Posterior:
                 out[f"{name}[{r}]"] = self._summary(float(v), i)
         out["Ktc_N_m2"] = self._summary(self.coefficients.Ktc_N_m2, 3)
         out["Krc_N_m2"] = self._summary(self.coefficients.Krc_N_m2, 4)
+        if self.mislabel_samples.size:
+            m0, s0 = self.likelihood.mislabel_prior()
+            e = self.mislabel_samples
+            out["mislabel_rate"] = {"mean": float(e.mean()), "sd": float(e.std()), "prior": m0, "prior_sd": s0,
+                                    "fixed": not self.likelihood.learns_mislabel,
+                                    "shift_in_prior_sd": float((e.mean() - m0) / s0) if s0 > 0 else 0.0,
+                                    "sd_ratio": float(e.std() / s0) if s0 > 0 else 0.0}
         return out
 
     def _summary(self, prior_value: float, i: int) -> dict:
@@ -242,5 +254,6 @@ class Posterior:
             rest = rng.choice(rest, n - 1, replace=False)
         keep = np.concatenate([[self.map_index], rest])
         lp = self.log_posterior[keep] if self.log_posterior.size == m else np.zeros(0)
+        eps = self.mislabel_samples[keep] if self.mislabel_samples.size == m else np.zeros(0)
         from dataclasses import replace
-        return replace(self, samples=self.samples[keep], log_posterior=lp)
+        return replace(self, samples=self.samples[keep], log_posterior=lp, mislabel_samples=eps)

@@ -15,10 +15,14 @@ from .outcomes_io import CutTable
 from .posterior import PARAMETERS, Posterior, PriorSD, smc
 from .tables import COARSE_NODES, FINE_NODES, Grid, LimitTable, build_table, direct_log_limits
 
-__all__ = ["LearnResult", "learn", "table_for", "loo_probability_stable", "VALIDATION_SAMPLES"]
+__all__ = ["LearnResult", "learn", "table_for", "loo_probability_stable", "mislabel_probability", "VALIDATION_SAMPLES"]
 
 #: Posterior samples at which ``learn`` checks its table against direct limits.
 VALIDATION_SAMPLES = 12
+#: A mark whose posterior probability of being wrong exceeds this is reported (``suspect_labels``).
+SUSPECT_LABEL = 0.5
+#: A posterior median mislabel rate above this is warned about.
+HIGH_MISLABEL = 0.15
 
 
 @dataclass(frozen=True)
@@ -35,6 +39,13 @@ class LearnResult:
     timings_s: dict = field(default_factory=dict)
     log_evidence: float = float("nan")
     model_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mislabel_probability: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def suspect_labels(self, threshold: float = SUSPECT_LABEL) -> list[dict]:
+        """Marks that are more likely wrong than right under the posterior (rows from 0)."""
+        p = self.mislabel_probability
+        return [{"index": int(i), "probability_mislabelled": float(p[i])}
+                for i in np.flatnonzero(np.nan_to_num(p) > threshold)]
 
     def to_dict(self) -> dict:
         model, coef = self.posterior.map_model()
@@ -46,6 +57,7 @@ class LearnResult:
                 "cause": self.posterior.cause(), "warnings": list(self.warnings),
                 "likelihood": self.posterior.likelihood.to_dict(),
                 "samples": int(self.posterior.samples.shape[0]), "timings_s": self.timings_s,
+                "suspect_labels": self.suspect_labels(),
                 "table_error": {"median": float(np.median(self.model_error)) if self.model_error.size else 0.0,
                                 "max": float(np.max(self.model_error, initial=0.0))}}
 
@@ -73,6 +85,22 @@ def _accuracy(p_stable: np.ndarray, cuts: CutTable) -> float:
         return float("nan")
     right = (p_stable[sel] >= 0.5) == (cuts.outcome[sel] == STABLE)
     return float(np.average(right, weights=cuts.weight[sel]))
+
+
+def mislabel_probability(p_stable_each: np.ndarray, mislabel: np.ndarray, cuts: CutTable) -> np.ndarray:
+    """Posterior probability that each cut's mark is wrong, (n_cuts,); NaN for ``uncertain`` and
+    unmarked cuts.
+
+    Given a sample (true P(stable) ``p``, mislabel rate ``eps``), a mark 'stable' is wrong with
+    probability ``eps (1 - p) / (eps + (1 - 2 eps) p)`` (Bayes on the likelihood's label model), a
+    mark 'chatter' likewise with ``p`` and ``1 - p`` swapped; averaged over the posterior samples.
+    ``p_stable_each``: (n_samples, n_cuts); ``mislabel``: (n_samples,).
+    """
+    eps = np.asarray(mislabel, dtype=float)[:, None]
+    p_true = np.where(cuts.outcome[None, :] == STABLE, p_stable_each, 1.0 - p_stable_each)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wrong = np.mean(np.where(eps > 0, eps * (1 - p_true) / (eps + (1 - 2 * eps) * p_true), 0.0), axis=0)
+    return np.where((cuts.outcome == STABLE) | (cuts.outcome == CHATTER), wrong, np.nan)
 
 
 def loo_probability_stable(log_terms: np.ndarray, p_stable_each: np.ndarray) -> np.ndarray:
@@ -130,16 +158,23 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     active = np.flatnonzero(sd > 0)
     log_a = np.log(cuts.axial_depth_m)
     labelled = cuts.outcome >= 0
+    # the sampler's coordinates: the free log-multipliers, then the mislabel rate's log-odds shift
+    x_sd = np.r_[sd[active], likelihood.mislabel_sd] if likelihood.learns_mislabel else sd[active]
 
     def full(x):
         u = np.zeros((x.shape[0], 5))
-        u[:, active] = x
+        u[:, active] = x[:, :active.size]
         return u
 
-    def terms(u, table, model_error=None):
+    def rate(x):
+        return likelihood.mislabel_rate(x[:, -1]) if likelihood.learns_mislabel else np.full(x.shape[0],
+                                                                                           likelihood.mislabel)
+
+    def terms(x, table, model_error=None):
+        u = full(x)
         lb = table.log_limit(u[:, 0], u[:, 1], u[:, 2], u[:, 3], u[:, 4])
         return likelihood.log_terms(log_a[None, :] - lb, cuts.outcome, np.where(labelled, cuts.weight, 0.0),
-                                    model_error=model_error), lb
+                                    model_error=model_error, mislabel=rate(x)[:, None]), lb
 
     rng = np.random.default_rng(seed)
     stages = []
@@ -148,7 +183,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         # from converged) locates the posterior; the fine table covers only where it lies, with a
         # margin of 2 sds beyond its extreme samples (notes/learn.md: why, and what it costs)
         coarse = table_for(prior, setup, cuts, grid_for(sd, coarse=True), method=method)
-        res0 = smc(lambda x: terms(full(x), coarse)[0].sum(axis=1), sd[active], rng=rng,
+        res0 = smc(lambda x: terms(x, coarse)[0].sum(axis=1), x_sd, rng=rng,
                    n_particles=max(500, n_particles // 2))
         u0 = full(res0.samples)
         stages.append(time.perf_counter() - t0)
@@ -157,7 +192,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                                                             max_ratio=FINE_NODES[1]),
                           method=method)
     t1 = time.perf_counter()
-    res = smc(lambda x: terms(full(x), table)[0].sum(axis=1), sd[active], rng=rng, n_particles=n_particles)
+    res = smc(lambda x: terms(x, table)[0].sum(axis=1), x_sd, rng=rng, n_particles=n_particles)
     t2 = time.perf_counter()
     model_error = np.zeros(cuts.n_cuts)
     if validate > 0 and active.size:
@@ -168,16 +203,18 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         direct = direct_log_limits(prior, setup.tool, setup.cut, coef, cuts.spindle_rpm, cuts.radial_depth_m,
                                    cuts.down, u_v, method=method, sdm_steps=table.grid.sdm_steps)
         model_error = np.sqrt(np.mean((table.log_limit(*u_v.T) - direct) ** 2, axis=0))
-        res = smc(lambda x: terms(full(x), table, model_error)[0].sum(axis=1), sd[active], rng=rng,
+        res = smc(lambda x: terms(x, table, model_error)[0].sum(axis=1), x_sd, rng=rng,
                   n_particles=n_particles)
     t3 = time.perf_counter()
     likelihood = replace(likelihood, model_error=float(np.sqrt(np.mean(model_error**2))))
-    u = full(res.samples)
-    tt, lb = terms(u, table, model_error)
+    u, eps = full(res.samples), rate(res.samples)
+    tt, lb = terms(res.samples, table, model_error)
     p_each = 1.0 - likelihood.p_chatter(log_a[None, :] - lb, model_error=model_error)
-    log_prior = -0.5 * np.sum((res.samples / sd[active]) ** 2, axis=1)
+    log_prior = -0.5 * np.sum((res.samples / x_sd) ** 2, axis=1)
     post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u,
-                     log_posterior=tt.sum(axis=1) + log_prior, likelihood=likelihood, method=method)
+                     log_posterior=tt.sum(axis=1) + log_prior, likelihood=likelihood, method=method,
+                     mislabel_samples=eps)
+    p_wrong = mislabel_probability(p_each, eps, cuts)
     # the prior's own prediction: fresh prior samples (no data used, so no cross-validation needed)
     u0 = np.zeros((n_particles, 5))
     u0[:, active] = np.random.default_rng(seed + 1).standard_normal((n_particles, active.size)) * sd[active]
@@ -204,6 +241,15 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     if np.isfinite(acc_a) and acc_a < 0.7:
         warnings.append(f"cross-validated accuracy {acc_a:.2f} is low: the model cannot explain the outcomes "
                         "(noisy marks, worn tool, a mode missing from the prior?)")
+    eps_med = float(np.median(eps))
+    if likelihood.learns_mislabel and eps_med > HIGH_MISLABEL:
+        warnings.append(f"the marks are noisy: about {eps_med:.0%} of them look wrong under any parameters "
+                        "(operators disagreeing, a worn tool, a changed setup?); the posterior is wide for it")
+    suspects = np.flatnonzero(np.nan_to_num(p_wrong) > SUSPECT_LABEL)
+    if suspects.size:
+        warnings.append(f"{suspects.size} mark(s) look wrong (probability > {SUSPECT_LABEL:g}), rows "
+                        + ", ".join(str(int(i)) for i in suspects[:10]) + (" ..." if suspects.size > 10 else "")
+                        + ": check them (suspect_labels)")
     big = model_error > 3 * likelihood.boundary_scale
     if big.mean() > 0.25:
         warnings.append(f"the limit tables are off by more than {3 * likelihood.boundary_scale:.0%} at "
@@ -214,4 +260,4 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     return LearnResult(posterior=post, table=table, accuracy_before=acc_b, accuracy_after=acc_a,
                        prior_probability_stable=p_prior, loo_probability_stable=p_loo,
                        warnings=tuple(warnings), timings_s=timings, log_evidence=res.log_evidence,
-                       model_error=model_error)
+                       model_error=model_error, mislabel_probability=p_wrong)
