@@ -31,27 +31,7 @@ poses (each with ``joints_deg``), :meth:`PoseModels.fit`
    non-negative and sum to one, so a positive semi-definite residual stays so, which an RBF
    (which overshoots) does not guarantee.
 
-The span rule
--------------
-Let ``q_i`` be the identified poses (degrees), ``c`` their mean and ``V_d`` the first ``d``
-right-singular vectors of the centred matrix ``[q_i - c]``, ``d`` the smallest number such that
-every ``q_i`` lies within ``subspace_tol_deg`` of the affine subspace ``c + span(V_d)`` (the
-joint directions the poses *actually* vary in). A pose ``q`` has span coordinates
-``z = V_d^T (q - c)``. It is **in the span** when both hold:
-
-- *(along)* ``z`` lies in the convex hull of the ``z_i``, up to ``hull_tol_deg`` (Euclidean
-  distance in the span coordinates; for ``d = 1`` this is the range ``[min z_i, max z_i]``);
-- *(across)* its distance to the identified span, ``distance_deg``, is at most ``span_tol_deg``.
-  ``distance_deg`` is the Euclidean distance in joint space (degrees) to: the single pose
-  (``d = 0``); the polyline through the poses in the order of ``z`` (``d = 1``, so poses along a
-  gently curved joint path count as 1-D as long as they stay within ``subspace_tol_deg`` of a
-  line); the hull of the ``z_i`` combined with the distance to the subspace,
-  ``sqrt(|(q - c) - V_d z|^2 + dist(z, hull)^2)`` (``d >= 2``).
-
-So going past the first or last identified pose along the span is flagged (beyond rounding),
-while a joint that never varied may deviate by up to ``span_tol_deg``. Values are never
-extrapolated: they are evaluated at the point of the hull nearest to ``z`` (the clipped range for
-``d = 1``), which is ``z`` itself for a pose inside.
+The span rule is in :mod:`planner.pose_span`, the mode matching in :mod:`planner.pose_matching`.
 
 Cost: :meth:`PoseModels.evaluate` works on the distinct rows of its input, vectorised; a pose
 beyond a span of ``d >= 2`` dimensions costs one small non-negative least squares (about 0.1 ms).
@@ -71,11 +51,12 @@ import numpy as np
 
 from oma._arrays import readonly as _ro
 from scipy.interpolate import RBFInterpolator
-from scipy.optimize import linear_sum_assignment, nnls
-from scipy.spatial import Delaunay, QhullError
 
 from oma.errors import ModelError
 from oma.modal import ModalModel
+
+from .pose_matching import mac_matrix, match_modes
+from .pose_span import PoseOutOfSpanError, Span
 
 __all__ = [
     "PoseModels",
@@ -90,57 +71,8 @@ __all__ = [
 #: RBF kernels without a shape parameter (scale-free), with the smallest polynomial degree each needs.
 KERNELS = {"thin_plate_spline": 1, "cubic": 1, "quintic": 2, "linear": 0}
 
-#: Cost of a forbidden pairing in the assignment (any allowed pairing costs < 2 + ln(1 + change)).
-_FORBIDDEN = 1e6
-#: Weight of the sum-to-one row in the non-negative least squares of the nearest hull point, in
-#: units of the hull's extent: the weights then sum to one within ~1e-9.
-_NNLS_WEIGHT = 1e5
 #: At most this many poses are kept in the cache of :meth:`PoseModels.at`.
 _CACHE_SIZE = 4096
-
-
-class PoseOutOfSpanError(ValueError):
-    """A pose outside the span of the identified poses was asked for.
-
-    Attributes
-    ----------
-    joints_deg : ndarray
-        The pose, degrees.
-    distance_deg : float
-        Its distance to the identified span, degrees.
-    beyond_range : bool
-        Whether it lies beyond the identified poses along the span.
-    """
-
-    def __init__(self, joints_deg, distance_deg: float, beyond_range: bool, span_tol_deg: float):
-        self.joints_deg = np.asarray(joints_deg, dtype=float)
-        self.distance_deg = float(distance_deg)
-        self.beyond_range = bool(beyond_range)
-        why = "beyond the identified poses along the span" if beyond_range else (
-            f"{self.distance_deg:.3g} deg from the span (tolerance {span_tol_deg:g} deg)")
-        pose = ", ".join(f"{q:.6g}" for q in self.joints_deg)
-        super().__init__(f"pose [{pose}] deg is outside the span of the identified poses: {why}")
-
-
-def mac_matrix(a, b) -> np.ndarray:
-    """Modal assurance criterion between two sets of real mode shapes.
-
-    Parameters
-    ----------
-    a : array_like, shape (n_a, n_dof)
-    b : array_like, shape (n_b, n_dof)
-
-    Returns
-    -------
-    ndarray, shape (n_a, n_b)
-        ``MAC_ij = (a_i . b_j)^2 / (|a_i|^2 |b_j|^2)``, in [0, 1]; insensitive to sign and scale
-        (Allemang, Sound & Vibration 37(8), 2003).
-    """
-    a = np.atleast_2d(np.asarray(a, dtype=float))
-    b = np.atleast_2d(np.asarray(b, dtype=float))
-    num = (a @ b.T) ** 2
-    den = np.sum(a * a, axis=1)[:, None] * np.sum(b * b, axis=1)[None, :]
-    return num / den
 
 
 def _positive_tol(value, name: str) -> float:
@@ -166,144 +98,6 @@ def _unique_rows(q: np.ndarray):
     inverse = np.empty(q.shape[0], dtype=int)
     inverse[order] = np.cumsum(first) - 1
     return qs[first], inverse
-
-
-# =========================================================================== span geometry
-@dataclass(frozen=True)
-class _Span:
-    """The identified poses' span: principal subspace, coordinates and hull (see module doc)."""
-
-    poses: np.ndarray  # (n, nj)
-    center: np.ndarray  # (nj,)
-    basis: np.ndarray  # (nj, d)
-    coords: np.ndarray  # (n, d)
-    order: np.ndarray | None = None  # d == 1: poses sorted along the span
-    triangulation: Delaunay | None = None  # d >= 2
-
-    @property
-    def dimension(self) -> int:
-        return int(self.basis.shape[1])
-
-    @classmethod
-    def build(cls, poses: np.ndarray, subspace_tol_deg: float) -> "_Span":
-        n, nj = poses.shape
-        center = poses.mean(axis=0)
-        x = poses - center
-        _, _, vt = np.linalg.svd(x, full_matrices=True)
-        d = 0
-        for d in range(0, min(n - 1, nj) + 1):
-            basis = vt[:d].T
-            off = x - (x @ basis) @ basis.T
-            if np.max(np.linalg.norm(off, axis=1)) <= subspace_tol_deg:
-                break
-        basis = vt[:d].T
-        coords = x @ basis
-        if n > 1:
-            gap = np.linalg.norm(coords[:, None, :] - coords[None, :, :], axis=-1)
-            gap[np.diag_indices(n)] = np.inf
-            i, j = np.unravel_index(np.argmin(gap), gap.shape)
-            if gap[i, j] <= subspace_tol_deg:
-                raise ValueError(
-                    f"models[{min(i, j)}] and models[{max(i, j)}] are at the same point of the span "
-                    f"(their poses differ by {gap[i, j]:.3g} deg along it, subspace_tol_deg = "
-                    f"{subspace_tol_deg:g}): merge them or lower subspace_tol_deg")
-        order = tri = None
-        if d == 1:
-            order = np.argsort(coords[:, 0], kind="stable")
-        elif d >= 2:
-            try:
-                tri = Delaunay(coords)
-            except QhullError as exc:  # degenerate even though the SVD says d-dimensional
-                raise ValueError(f"the poses' span could not be triangulated in {d} dimensions: {exc}") from exc
-        return cls(poses=poses, center=center, basis=basis, coords=coords, order=order, triangulation=tri)
-
-    def locate(self, q: np.ndarray, hull_tol_deg: float):
-        """Span coordinates of the nearest point of the hull, pose weights there, and the tests.
-
-        Parameters
-        ----------
-        q : ndarray, shape (m, nj)
-
-        Returns
-        -------
-        z_near : ndarray, shape (m, d)
-            The point of the hull nearest to each pose's span coordinates.
-        weights : ndarray, shape (m, n)
-            Piecewise-linear (barycentric) weights of the identified poses at ``z_near``;
-            non-negative, summing to one.
-        beyond : ndarray of bool, shape (m,)
-            Span coordinates outside the hull by more than ``hull_tol_deg``.
-        distance : ndarray, shape (m,)
-            Distance to the identified span, degrees (module doc).
-        """
-        m = q.shape[0]
-        n = self.poses.shape[0]
-        d = self.dimension
-        x = q - self.center
-        z = x @ self.basis
-        weights = np.zeros((m, n))
-        if d == 0:
-            weights[:] = 1.0
-            distance = np.linalg.norm(x, axis=1)
-            return z, weights, np.zeros(m, dtype=bool), distance
-        if d == 1:
-            return self._locate_1d(q, z, hull_tol_deg)
-        off = np.linalg.norm(x - z @ self.basis.T, axis=1)
-        tri = self.triangulation
-        simplex = tri.find_simplex(z)
-        inside = simplex >= 0
-        z_near = z.copy()
-        gap = np.zeros(m)
-        if np.any(inside):
-            s = simplex[inside]
-            t = tri.transform[s]
-            b = np.einsum("ijk,ik->ij", t[:, :d], z[inside] - t[:, d])
-            bary = np.column_stack([b, 1.0 - b.sum(axis=1)])
-            bary = np.clip(bary, 0.0, None)
-            bary /= bary.sum(axis=1, keepdims=True)
-            rows = np.flatnonzero(inside)
-            np.add.at(weights, (rows[:, None], tri.simplices[s]), bary)
-        for i in np.flatnonzero(~inside):
-            w = self._hull_weights(z[i])
-            weights[i] = w
-            z_near[i] = w @ self.coords
-            gap[i] = np.linalg.norm(z[i] - z_near[i])
-        distance = np.hypot(off, gap)
-        return z_near, weights, gap > hull_tol_deg, distance
-
-    def _locate_1d(self, q, z, hull_tol_deg):
-        m = q.shape[0]
-        n = self.poses.shape[0]
-        t_sorted = self.coords[self.order, 0]
-        p_sorted = self.poses[self.order]
-        t = z[:, 0]
-        beyond = (t < t_sorted[0] - hull_tol_deg) | (t > t_sorted[-1] + hull_tol_deg)
-        tc = np.clip(t, t_sorted[0], t_sorted[-1])
-        seg = np.clip(np.searchsorted(t_sorted, tc, side="right") - 1, 0, n - 2)
-        frac = (tc - t_sorted[seg]) / (t_sorted[seg + 1] - t_sorted[seg])
-        weights = np.zeros((m, n))
-        rows = np.arange(m)
-        weights[rows, self.order[seg]] = 1.0 - frac
-        weights[rows, self.order[seg + 1]] += frac
-        # distance to the polyline through the poses (in joint space)
-        distance = np.full(m, np.inf)
-        for k in range(n - 1):
-            a = p_sorted[k]
-            v = p_sorted[k + 1] - a
-            s = np.clip(((q - a) @ v) / (v @ v), 0.0, 1.0)
-            distance = np.minimum(distance, np.linalg.norm(q - a - s[:, None] * v, axis=1))
-        return tc[:, None], weights, beyond, distance
-
-    def _hull_weights(self, z: np.ndarray) -> np.ndarray:
-        """Convex weights of the hull point nearest to ``z`` (non-negative least squares with a
-        heavily weighted sum-to-one row, in coordinates scaled to the hull's extent)."""
-        zc = self.coords
-        mid = zc.mean(axis=0)
-        scale = max(float(np.max(np.ptp(zc, axis=0))), 1e-300)
-        a = np.vstack([((zc - mid) / scale).T, np.full(zc.shape[0], _NNLS_WEIGHT)])
-        b = np.append((z - mid) / scale, _NNLS_WEIGHT)
-        w, _ = nnls(a, b)
-        return w / w.sum()
 
 
 # =========================================================================== results
@@ -491,7 +285,7 @@ class PoseModels:
     reference_pose: int = 0
     mode_index: np.ndarray | None = None
     dropped_modes: tuple = ()
-    _span: _Span = field(init=False, repr=False)
+    _span: Span = field(init=False, repr=False)
     _rbf: RBFInterpolator | None = field(init=False, repr=False)
     _cache: dict = field(init=False, repr=False)
 
@@ -535,7 +329,7 @@ class PoseModels:
             object.__setattr__(self, "mode_index", _ro(self.mode_index, dtype=int))
         object.__setattr__(self, "dropped_modes", tuple(tuple(x) for x in self.dropped_modes))
 
-        span = _Span.build(q, self.subspace_tol_deg)
+        span = Span.build(q, self.subspace_tol_deg)
         rbf = None
         if span.dimension >= 1:
             degree = KERNELS[self.kernel]
@@ -622,7 +416,7 @@ class PoseModels:
             raise ValueError(f"reference must be a pose index in [0, {n - 1}], found {reference!r}")
         reference = int(reference)
 
-        assign, sign = _match_all(models, dist, reference, min_mac, math.log1p(max_freq_change))
+        assign, sign = match_modes(models, dist, reference, min_mac, math.log1p(max_freq_change))
         kept = np.flatnonzero(np.all(assign >= 0, axis=0))
         if kept.size == 0:
             raise ValueError("no mode could be matched at every pose (check min_mac and max_freq_change)")
@@ -830,48 +624,3 @@ class PoseModels:
             "subspace_tol_deg": self.subspace_tol_deg,
             "hull_tol_deg": self.hull_tol_deg,
         }
-
-
-# =========================================================================== mode matching
-def _match_all(models, dist, reference, min_mac, max_log_ratio):
-    """Assign every pose's modes to the reference modes (module doc).
-
-    Returns ``assign`` (n_poses, n_ref) with the mode index at each pose or -1, and ``sign``
-    (n_poses, n_ref), +-1, that aligns each matched direction with its template.
-    """
-    n = len(models)
-    n_ref = models[reference].n_modes
-    assign = np.full((n, n_ref), -1, dtype=int)
-    sign = np.ones((n, n_ref))
-    assign[reference] = np.arange(n_ref)
-    done = [reference]
-    todo = [p for p in range(n) if p != reference]
-    while todo:
-        near = dist[np.ix_(todo, done)].min(axis=1)
-        p = todo.pop(int(np.argmin(near)))
-        tf, tu, rows = [], [], []
-        for r in range(n_ref):
-            have = [s for s in done if assign[s, r] >= 0]
-            if not have:
-                continue
-            s = have[int(np.argmin(dist[p, have]))]
-            j = assign[s, r]
-            rows.append(r)
-            tf.append(models[s].natural_frequency_hz[j])
-            tu.append(models[s].directions[j] * sign[s, r])
-        done.append(p)
-        if not rows:
-            continue
-        tf, tu = np.array(tf), np.array(tu)
-        model = models[p]
-        mac = mac_matrix(tu, model.directions)
-        log_ratio = np.abs(np.log(model.natural_frequency_hz[None, :] / tf[:, None]))
-        allowed = (mac >= min_mac) & (log_ratio <= max_log_ratio)
-        cost = np.where(allowed, (1.0 - mac) + log_ratio, _FORBIDDEN)
-        ri, ci = linear_sum_assignment(cost)
-        for a, b in zip(ri, ci):
-            if allowed[a, b]:
-                r = rows[a]
-                assign[p, r] = b
-                sign[p, r] = 1.0 if tu[a] @ model.directions[b] >= 0 else -1.0
-    return assign, sign
