@@ -18,8 +18,8 @@ from oma.errors import InputError
 from planner.diagnosis import diagnose
 from planner.diagnosis.cases import hidden_effect_case, paper_like_cell
 from planner.diagnosis.closedloop import closed_loop_force_psd
-from planner.diagnosis.compare import (PartEvaluation, align_angle, compare_records, prepare_views, rotate,
-                                       significance)
+from planner.diagnosis.compare import PartEvaluation, compare_records, prepare_views, significance
+from planner.diagnosis.parts import align_angle, rotate
 from planner.diagnosis.forcemodel import analytic_harmonics, simulated_harmonics
 from planner.diagnosis.response import free_response_basis, mode_filter, modal_response
 from planner.diagnosis.spectral import (dft_band_power, expected_welch, fold_frequency, harmonic_coefficients,

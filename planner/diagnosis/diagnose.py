@@ -43,9 +43,10 @@ from oma.spectra import welch_spectra
 from .causes import CANDIDATES, Extension, fit_candidate
 from .coefficients import CoefficientFit, fit_coefficients
 from .floors import FLOORS, practical_size
-from .compare import (Comparison, PartEvaluation, Parts, align_angle, prepare_views, record_comparisons, rotate,
-                      significance)
+from .compare import Comparison, Parts, record_comparisons
+from .evaluation import PartEvaluation, prepare_views, significance
 from .forcemodel import sensor_gain
+from .parts import align_angle, rotate
 
 __all__ = ["CandidateResult", "Diagnosis", "diagnose", "CAUSE_NAMES"]
 

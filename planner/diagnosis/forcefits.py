@@ -14,9 +14,10 @@ from oma.cutting import CuttingCoefficients
 from stability.simulate import Effects, ForceSensorDynamics, NonlinearCutting
 
 from .coefficients import _units, coefficient_basis, coefficient_bounds, coefficient_start, expand, standard_errors
-from .compare import Parts, align_angle, rotate
+from .compare import Parts
 from .extension import Extension, _failed
 from .forcemodel import ToothRadiiRunout, sensor_gain
+from .parts import align_angle, rotate
 
 __all__ = ["fit_runout", "fit_force_sensor", "fit_nonlinear"]
 
