@@ -25,6 +25,7 @@ import numpy as np
 
 from oma._arrays import readonly as _ro
 from oma.errors import InputError
+from planner.robot.ik import SINGULARITY_THRESHOLD
 
 __all__ = ["AtlasProblem", "build_problem"]
 
@@ -51,7 +52,7 @@ class AtlasProblem:
     torque_per_depth_N: float  # mean torque = this * ap
     n_freq: int = 500
     min_tip_fraction: float = 1e-3
-    singularity_threshold: float = 1e-3
+    singularity_threshold: float = SINGULARITY_THRESHOLD
     tool_modes: dict | None = None
     tool: object = None  # oma.cutting.Tool
     cut_machine: object = None  # oma.cutting.Cut, directions in the machine frame
@@ -78,7 +79,7 @@ def _limits_error(setup_file, field, found="none"):
 
 def build_problem(robot, setup, region, *, setup_file=None, rpm_range=None, n_rpm: int = 300, n_freq: int = 500,
                   tool_model=None, min_tip_fraction: float = 1e-3,
-                  singularity_threshold: float = 1e-3) -> AtlasProblem:
+                  singularity_threshold: float = SINGULARITY_THRESHOLD) -> AtlasProblem:
     """The :class:`AtlasProblem` of a robot, a setup and a region.
 
     Parameters

@@ -36,7 +36,13 @@ from .description import Robot, RobotError
 from ._ik_kernel import solve_all
 from .kinematics import _cross, as_poses, flange_frames, link_frames, tip_jacobian
 
-__all__ = ["IKSolutions", "inverse_kinematics", "target_rotation", "check_opw", "opw_parameters",
+#: A pose is "too close to a singularity" below this :func:`singularity_measure` (1 m length):
+#: near the wrist singularity it is ~ sin(q5) x 0.3 for this arm class, so 0.01 is about
+#: |q5| < 2 deg, where 1 mm of commanded tool motion asks for > 100 mrad of joint motion. The
+#: toolpath check, the posture search and the atlas all use it.
+SINGULARITY_THRESHOLD = 0.01
+
+__all__ = ["IKSolutions", "SINGULARITY_THRESHOLD", "inverse_kinematics", "target_rotation", "check_opw", "opw_parameters",
            "continuous_branch", "PathIK", "singularity_measure", "joint_limit_distance", "tool_rotation",
            "N_BRANCHES"]
 

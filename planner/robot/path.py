@@ -38,6 +38,7 @@ from oma._arrays import readonly as _ro
 from oma.modal import ModalModel
 
 from .description import Robot, RobotError
+from .ik import SINGULARITY_THRESHOLD
 
 __all__ = ["PathJoints", "solve_path", "singularity_measure", "lowest_mode_map", "read_cell", "robot_point_models",
            "POSE_RESOLUTION_DEG", "SINGULARITY_THRESHOLD", "CHARACTERISTIC_LENGTH_M"]
@@ -50,10 +51,6 @@ __all__ = ["PathJoints", "solve_path", "singularity_measure", "lowest_mode_map",
 POSE_RESOLUTION_DEG = 0.05
 #: Length scaling the Jacobian's translational rows, m (the order of the arm's links).
 CHARACTERISTIC_LENGTH_M = 1.0
-#: A pose is "too close to a singularity" below this inverse condition number of the scaled
-#: Jacobian: near the wrist singularity it is ~ sin(q5) x 0.3 for this arm class, so 0.01 is about
-#: |q5| < 2 deg, where 1 mm of commanded tool motion asks for > 100 mrad of joint motion.
-SINGULARITY_THRESHOLD = 0.01
 #: Modes whose tool-tip compliance is below this fraction of the largest at the pose are stiffened
 #: to that fraction (their effect on the tip is negligible; it keeps every pose at six modes).
 _MIN_TIP_FRACTION = 1e-9
