@@ -24,7 +24,7 @@ from stability import zoa
 from stability.lobes import LobeDiagram, lobe_diagram
 
 if TYPE_CHECKING:
-    from .optimize import PlanSettings
+    from .plan_results import PlanSettings
 
 __all__ = ["Pocket", "cheb_eval", "build_pockets", "zoa_pockets", "sdm_pockets"]
 
