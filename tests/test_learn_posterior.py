@@ -150,9 +150,9 @@ def test_learn_measures_the_error_of_its_table(problem):
     grid = Grid.around(PriorSD().log_sds()[0], 0.0, 0.0, sdm_steps=(10.0, 20))
     table = build_table(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients, cuts.spindle_rpm,
                         cuts.radial_depth_m, cuts.down, grid, workers=1)
-    # the rate of wrong marks fixed: these marks (a constant limit) fit no tool, and a learned rate lets the
-    # frequency spread past the table's range, where the clipped table is off for another reason
-    lk = Likelihood(mislabel_sd=0.0)
+    # the rate of wrong marks fixed (the default; these marks, a constant limit, fit no tool, and a learned
+    # rate lets the frequency spread past the table's range, where the clipped table is off for another reason)
+    lk = Likelihood()
     fixed = learn(setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table, n_particles=500, seed=1,
                   likelihood=lk)
     free = learn(setup, problem.prior, cuts, free=("frequency", "stiffness", "damping"), table=table,
@@ -183,7 +183,7 @@ def test_smc_matches_a_brute_force_grid_posterior(problem):
     lim = np.exp(table.log_limit(*[[x] for x in truth_u])[0])
     cuts = label(cuts, lim, rng)
     # validate=0: the check is of the sampler on the grid's own likelihood (no table-error widening)
-    lk = Likelihood(mislabel_sd=0.0)  # the rate fixed: its own grid check is the next test
+    lk = Likelihood()  # the rate fixed (the default): the learned rate's grid check is the next test
     res = learn(setup, problem.prior, cuts, free=free, table=table, n_particles=4000, seed=2, validate=0,
                 likelihood=lk)
     s = res.posterior.samples
@@ -245,7 +245,7 @@ def test_mislabel_rate_prior_and_per_sample_terms():
     """The rate's logit-normal prior has its median at ``mislabel``; its mean by Gauss-Hermite
     equals a Monte Carlo mean; per-sample rates give each row the scalar rate's terms."""
     lk = Likelihood(mislabel=0.05, mislabel_sd=1.2)
-    assert lk.learns_mislabel and not Likelihood(mislabel_sd=0.0).learns_mislabel
+    assert lk.learns_mislabel and not Likelihood().learns_mislabel
     assert float(lk.mislabel_rate(0.0)) == pytest.approx(0.05)
     x = np.random.default_rng(0).standard_normal(400_000) * 1.2
     r = lk.mislabel_rate(x)
@@ -282,7 +282,7 @@ def test_smc_with_a_learned_mislabel_rate_matches_a_grid_posterior(problem):
     """Frequency and the mislabel rate's coordinate free (25 cuts, 20 % flipped): the SMC
     marginals against a 301 x 121 grid posterior, the tolerances of the test above."""
     cuts, table, _ = _zoa_problem(problem, 25, 21, 0.2, free=("frequency",))
-    lk = Likelihood()
+    lk = Likelihood(mislabel_sd=1.2)
     res = learn(problem.setup, problem.prior, cuts, free=("frequency",), table=table, n_particles=4000, seed=3,
                 validate=0, likelihood=lk)
     sd_f = PriorSD().log_sds()[0]
@@ -307,10 +307,14 @@ def test_smc_with_a_learned_mislabel_rate_matches_a_grid_posterior(problem):
 def test_learn_finds_the_share_of_wrong_marks_and_which_they_are(problem, flip):
     """40 cuts from an exactly specified model: with clean marks the learned rate stays low (median
     under the prior's 5 %); with 30 % flipped its 90 % interval holds 0.3 and the fixed 5 % rate
-    would be outside it. The marks reported as suspect are mostly truly flipped (>= 75 %)."""
+    would be outside it. The marks reported as suspect are mostly truly flipped (>= 75 %). With the
+    rate fixed at 5 % (the default), 30 % flipped marks are warned about, clean ones are not."""
     cuts, table, flipped = _zoa_problem(problem, 40, 31, flip)
+    fixed = learn(problem.setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table,
+                  n_particles=1000, seed=4, validate=0)
+    assert any("marks look wrong, more than" in w for w in fixed.warnings) == (flip > 0), fixed.warnings
     res = learn(problem.setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table,
-                n_particles=2000, seed=4, validate=0)
+                n_particles=2000, seed=4, validate=0, likelihood=Likelihood(mislabel_sd=1.2))
     eps = res.posterior.mislabel_samples
     lo, med, hi = np.quantile(eps, [0.05, 0.5, 0.95])
     info = res.to_dict()

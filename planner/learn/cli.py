@@ -47,9 +47,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--method", choices=["sdm", "auto", "zoa"], default="sdm",
                    help="stability method per cut (auto: SDM below ae/D = 0.2, ZOA above)")
     p.add_argument("--mislabel", type=float, default=0.05, metavar="RATE",
-                   help="prior median of the share of wrong marks (learned from the cuts; default 0.05)")
-    p.add_argument("--mislabel-sd", type=float, default=1.2, metavar="SD",
-                   help="prior sd of that share's log-odds (default 1.2: 90 %% between 0.7 and 22 %%); 0 fixes it")
+                   help="share of wrong marks (default 0.05; with --mislabel-sd > 0 the prior median of a learned share)")
+    p.add_argument("--mislabel-sd", type=float, default=0.0, metavar="SD",
+                   help="learn the share: prior sd of its log-odds (1.2: 90 %% between 0.7 and 22 %%); default 0, fixed")
     p.add_argument("--samples", type=int, default=2000, help="posterior particles")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rpm", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),

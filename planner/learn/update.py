@@ -245,6 +245,16 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     if likelihood.learns_mislabel and eps_med > HIGH_MISLABEL:
         warnings.append(f"the marks are noisy: about {eps_med:.0%} of them look wrong under any parameters "
                         "(operators disagreeing, a worn tool, a changed setup?); the posterior is wide for it")
+    marked = np.isfinite(p_wrong)
+    if not likelihood.learns_mislabel and marked.sum() and likelihood.mislabel > 0:
+        from scipy.stats import binom
+
+        expected = binom.ppf(0.99, int(marked.sum()), likelihood.mislabel)
+        wrong = float(np.sum(p_wrong[marked]))
+        if wrong > expected:
+            warnings.append(f"about {wrong:.0f} of {int(marked.sum())} marks look wrong, more than a share of "
+                            f"{likelihood.mislabel:.0%} explains (at most {expected:.0f} in 99 % of cases): the marks "
+                            "may be noisier; learn the share (--mislabel-sd 1.2) for an honest posterior")
     suspects = np.flatnonzero(np.nan_to_num(p_wrong) > SUSPECT_LABEL)
     if suspects.size:
         warnings.append(f"{suspects.size} mark(s) look wrong (probability > {SUSPECT_LABEL:g}), rows "
