@@ -199,9 +199,13 @@ def _arnoldi(mono: np.ndarray, k: int, vectors: bool):
     broke = _compiled(_arnoldi_loop)(np.ascontiguousarray(mono, dtype=float), int(k), _start_vector(n), basis, hess)
     mu, vec, resid = _ritz(basis, hess, k, vectors)
     if broke.any():
+        # LAPACK returns real Ritz values when all of a batch's are real: complex before the
+        # redone rows go in, or their imaginary parts (and so their moduli) would be dropped
         mu2, vec2, resid2 = _arnoldi_numpy(mono[broke], k, vectors)
+        mu = mu.astype(complex)
         mu[broke], resid[broke] = mu2, resid2
         if vectors:
+            vec = vec.astype(complex)
             vec[broke] = vec2
     return mu, vec, resid
 

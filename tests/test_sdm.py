@@ -233,3 +233,25 @@ def test_the_limit_is_below_a_flip_lens_under_a_stable_gap(ratio, rpm):
     assert np.all(rho < 1.0), depths[rho >= 1.0]
     assert prob.spectral_radius(rpm, 1.01 * limit, steps) > 1.0
     assert point.kind == "flip"
+
+
+def test_arnoldi_breakdown_keeps_a_complex_dominant_multiplier():
+    """A monodromy whose Krylov space from the fixed start vector breaks down at once (the start is
+    an eigenvector, 0.5) and whose dominant multipliers are a complex pair of modulus 0.95 elsewhere,
+    batched with one whose Ritz values are all real: the redone row keeps its imaginary part (LAPACK
+    returns a real array for the real batch, which once dropped it: modulus 0.73, a stable verdict)."""
+    from stability._sdm_kernels import _arnoldi, _dominant, _start_vector
+
+    n = 40
+    v0 = _start_vector(n)
+    q, _ = np.linalg.qr(np.column_stack([v0, np.random.default_rng(1).standard_normal((n, n - 1))]))
+    d = np.zeros((n, n))
+    d[0, 0] = 0.5
+    d[1:3, 1:3] = 0.95 * np.array([[np.cos(0.7), -np.sin(0.7)], [np.sin(0.7), np.cos(0.7)]])
+    broken = q @ d @ q.T
+    real = np.diag(np.linspace(0.1, 0.9, n))
+    mu, _, _ = _arnoldi(np.stack([real, broken]), 10, False)
+    assert abs(mu[1]) == pytest.approx(0.95, rel=1e-9)
+    dom, _ = _dominant(np.stack([real, broken]))
+    np.testing.assert_allclose(np.abs(dom), np.abs([np.linalg.eigvals(m)[np.argmax(np.abs(np.linalg.eigvals(m)))]
+                                                    for m in (real, broken)]), rtol=1e-8)
