@@ -290,6 +290,44 @@ def test_whittle_likelihood_gradient_and_fisher_match_finite_differences(noise, 
     ds = [(spectrum(p + e) - spectrum(p - e)) / (2 * h) for e in steps]
     ref = np.array([[np.real(np.einsum("kab,kbc,kcd,kda->", sinv, a, sinv, b)) for b in ds] for a in ds])
     np.testing.assert_allclose(ml._fisher(p, mod), ref, rtol=1e-6, atol=1e-7 * np.max(np.abs(ref)))
+    # the bins' scores (the sandwich's ingredients) add up to the gradient
+    val, per_bin = ml._nll(p, mod, x, per_bin=True)
+    assert per_bin.shape == (k, p.size) and val == ml._nll(p, mod, x)[0]
+    np.testing.assert_allclose(per_bin.sum(axis=0), grad, rtol=1e-10, atol=1e-12 * np.max(np.abs(grad)))
+
+
+def test_information_errors_match_the_scatter_of_the_ml_estimate():
+    """The refinement's standard errors (the larger of the inverse Fisher information and the
+    sandwich) against the scatter of its own estimates over periodograms drawn from a known close
+    pair (10.0 / 10.5 Hz, 5 %, along Z and X, a constant background; 0.05 Hz bins as in a 20 s
+    record, accelerance tilt): the mean error within 30 % of the observed spread for the
+    frequency and log damping of both modes, and the 95 % intervals covering >= 80 % of 30 draws.
+    The segment jackknife used before covered 75-80 % for this pair on the benchmark records."""
+    from oma.output_only import ml, whittle
+
+    rng = np.random.default_rng(7)
+    l = 3
+    f_true, z_true = np.array([10.0, 10.5]), np.array([0.05, 0.05])
+    u_true = np.array([[0, 0, 1.0], [1.0, 0, 0]])
+    w = 2 * np.pi * np.arange(7.0, 13.6, 0.05)
+    gain = w ** 4 / np.mean(w ** 4)
+    v = u_true.T[None, :, :] / whittle._response(f_true, z_true, z_true, w)[:, None, :]
+    s = gain[:, None, None] * (v @ np.diag([1.0, 1.3]) @ np.conj(np.swapaxes(v, 1, 2))) + 0.02 * np.eye(l)[None]
+    chol = np.linalg.cholesky(s)
+    est, se = [], []
+    for _ in range(30):
+        e = (rng.standard_normal((w.size, l)) + 1j * rng.standard_normal((w.size, l))) / np.sqrt(2)
+        x = (chol @ e[:, :, None])[..., 0]
+        u0 = u_true + 0.1 * rng.standard_normal(u_true.shape)
+        f, z, u, _, px, mod = ml._fit_group(w, x, f_true * (1 + 0.005 * rng.standard_normal(2)),
+                                            z_true * np.exp(0.1 * rng.standard_normal(2)),
+                                            (u0 / np.linalg.norm(u0, axis=1, keepdims=True)).T, 2, residuals=False)
+        est.append(np.r_[f, np.log(z)])
+        se.append(ml._information_se(px, mod, x, u, np.ones(l))[:2].ravel())
+    err, se = np.array(est) - np.r_[f_true, np.log(z_true)], np.array(se)
+    ratio = np.mean(se, axis=0) / np.sqrt(np.mean(err ** 2, axis=0))
+    assert np.all((ratio > 0.7) & (ratio < 1.3)), ratio
+    assert np.all(np.mean(np.abs(err) < 1.96 * se, axis=0) >= 0.8)
 
 
 def test_view_choice_keeps_per_band_the_view_resolving_more_modes():

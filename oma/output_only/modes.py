@@ -8,8 +8,10 @@ the correlation of the data; SSI-cov poles at every even order, stability and cl
 (:mod:`oma.output_only.ssi`) give the modes. A cluster that sits on a milling line with almost no
 damping is a harmonic the regression left behind (a wandering spindle), not a mode: it is
 reported as such. SSI runs on two spectral tilts of the residual (acceleration and displacement)
-and each band keeps the view that resolves more modes. The delete-one-segment jackknife
-(:mod:`oma.output_only.uncertainty`) gives the standard errors of frequency and damping.
+and each band keeps the view that resolves more modes. The Whittle maximum-likelihood refinement
+(:mod:`oma.output_only.ml`) gives the standard errors of frequency, damping and direction from its
+information; SSI's delete-one-segment jackknife (:mod:`oma.output_only.uncertainty`) those of the
+modes it does not fit, and the directions' errors while the reported directions are SSI's.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Any
 
 import numpy as np
 from scipy import signal as sps
+from scipy import stats
 
 from .._arrays import readonly as _ro
 from .._linalg import single_threaded_blas
@@ -146,8 +149,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                        fdd_directions: bool = False, alias_up_to: float = 0.5, ml_refine: bool = True,
                        ml_directions: bool = False, derivative: int = 2,
                        ssi_derivatives: tuple | None = (2, 0), ml_options: dict | None = None,
-                       ml_evidence: bool = True) -> OutputOnlyModes:
-    """Modes, with jackknife intervals, from one or more response records of one pose.
+                       ml_evidence: bool = True, uncertainty: str = "information") -> OutputOnlyModes:
+    """Modes, with intervals, from one or more response records of one pose.
 
     Parameters
     ----------
@@ -194,8 +197,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     ml_refine : bool
         Refine frequency, damping and direction of the SSI modes (number and rough place fixed)
         by maximising the Whittle likelihood of the output periodogram matrix around them
-        (:func:`oma.output_only.ml.refine_modes_ml`); the jackknife then re-runs this refinement
-        per deleted segment, so the intervals belong to the refined estimate. A refined frequency
+        (:func:`oma.output_only.ml.refine_modes_ml`), with standard errors from its information
+        (``uncertainty``), so the intervals belong to the refined estimate. A refined frequency
         more than :data:`ML_MAX_SHIFT` SSI standard errors from SSI's is taken for a misfit (one
         SSI mode for two true ones) and SSI's values are kept.
     ml_directions : bool
@@ -218,6 +221,11 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         With ``ml_refine``: every mode must raise the Whittle likelihood of its band by more
         than the BIC penalty of its parameters (the group refitted without it, both with the
         coherent tail model), else it is dropped with a warning.
+    uncertainty : {'information', 'jackknife'}
+        Standard errors of the refined modes: from the information at the optimum (default;
+        the larger of the inverse Fisher information and the sandwich), or the delete-one-segment
+        jackknife of the refinement (rounds 1-2; see :func:`_ml_refine`). Modes the refinement
+        did not fit keep SSI's jackknife errors.
     """
     signals = [np.array(s, dtype=float, ndmin=2) for s in signals]
     fs = float(sample_rate_hz)
@@ -287,10 +295,11 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         warnings.append("record too short for the segment jackknife: no intervals")
     if fdd_directions and f_hat.size:
         shapes = _fdd_shapes(raw, fs, f_hat, z_hat, shapes)
+    from_information = np.zeros(f_hat.size, dtype=bool)
     if ml_refine and f_hat.size:
         ev = {} if ml_evidence else None
         out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
-                         **(ml_options or {}))
+                         uncertainty=uncertainty, **(ml_options or {}))
         # a mode whose likelihood gain is under its BIC penalty is not supported by the data: the
         # refinement dropped it and refitted its group without it
         weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
@@ -310,17 +319,29 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         fitted = fitted & ~moved    # a group whose fit failed keeps SSI's values and errors
         f_hat, z_hat = np.where(fitted, f_hat, f_ssi), np.where(fitted, z_hat, z_ssi)
         if ses is not None:
-            f_se, z_se = (np.where(fitted, new, old) for new, old in zip(ses[:2], (f_se, z_se)))
+            with_se = fitted & np.isfinite(ses[0]) & np.isfinite(ses[1])
+            f_se, z_se = (np.where(with_se, new, old) for new, old in zip(ses[:2], (f_se, z_se)))
+            if uncertainty == "information":
+                from_information = with_se
         if ml_directions:
             shapes = ml_shapes
             if ses is not None:
-                u_se = np.where(fitted, ses[2], u_se)
+                u_se = np.where(fitted & np.isfinite(ses[2]), ses[2], u_se)
     full_shapes = np.zeros((3, f_hat.size), dtype=complex)
     full_shapes[axes] = shapes
     directions = np.array([real_direction(full_shapes[:, k]) for k in range(f_hat.size)]).reshape(-1, 3)
+    # SSI's jackknife: Student t with n_seg - 1 degrees of freedom; the refinement's information:
+    # normal, the damping's interval symmetric in its logarithm (the parameter it is fitted in)
+    f_iv, z_iv = t_interval(f_hat, f_se, n_seg, level), t_interval(z_hat, z_se, n_seg, level)
+    if np.any(from_information):
+        zq = stats.norm.ppf(0.5 + 0.5 * level)
+        k = from_information
+        f_iv[k] = np.column_stack([f_hat[k] - zq * f_se[k], f_hat[k] + zq * f_se[k]])
+        log_se = z_se[k] / z_hat[k]
+        z_iv[k] = np.column_stack([z_hat[k] * np.exp(-zq * log_se), z_hat[k] * np.exp(zq * log_se)])
     return OutputOnlyModes(
         freq_hz=f_hat, damping_ratio=z_hat, freq_se_hz=f_se, damping_se=z_se,
-        freq_interval_hz=t_interval(f_hat, f_se, n_seg, level), damping_interval=t_interval(z_hat, z_se, n_seg, level),
+        freq_interval_hz=f_iv, damping_interval=z_iv,
         directions=directions, shapes=full_shapes, support=support, harmonics=tuple(harmonics),
         direction_se_rad=u_se, rejected_hz=rejected, band_hz=band, n_segments=n_seg, level=level, warnings=tuple(warnings),
     )
@@ -374,12 +395,21 @@ def _reweight(x, fs, from_derivative, to_derivative, highpass_hz):
     return np.fft.irfft(spec * (1j * w) ** k, n=x.shape[-1], axis=-1)
 
 
-def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=None, **options):
+def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=None,
+               uncertainty: str = "information", **options):
     """Whittle-ML refinement (:func:`oma.output_only.ml.refine_modes_ml`) in unit-variance channels,
-    and its delete-one-segment jackknife (the same segments as SSI's; per segment the refinement
-    is updated from the full-record optimum). Returns frequency, damping, shapes, the fitted
-    mask and the jackknife standard errors of frequency, damping and direction (None where the
-    jackknife could not run)."""
+    with its standard errors. Returns frequency, damping, shapes, the fitted mask and the standard
+    errors of frequency (Hz), damping (ratio) and direction (rad) (None where they could not be
+    computed).
+
+    ``uncertainty``: ``'information'`` (default), the larger of the inverse Fisher information and
+    the sandwich at the optimum (:func:`oma.output_only.ml._information_se`); ``'jackknife'``, the
+    delete-one-segment jackknife of the refinement (the same segments as SSI's, each refitted from
+    the full-record optimum), the method of rounds 1-2, kept for comparison (its damping intervals
+    of the close pair covered 75-80 %, docs/output_only.md).
+    """
+    if uncertainty not in ("information", "jackknife"):
+        raise ValueError(f"uncertainty must be 'information' or 'jackknife', found {uncertainty!r}")
     ch = np.sqrt(np.mean(np.concatenate([r for r in residuals], axis=1) ** 2, axis=1))
     ch = np.where(ch > 0, ch, 1.0)
     unit = [r / ch[:, None] for r in residuals]
@@ -392,13 +422,16 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
     for i, r in enumerate(unit):
         bounds = segment_bounds(r.shape[1], max(int(round(n_segments * r.shape[1] / total)), 1))
         cuts += [(i, a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-    f, z, u, fitted, rep = refine_modes_ml(unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines,
-                                           segments=cuts if len(cuts) >= 3 else None, evidence=evidence,
-                                           direction_scale=ch, **options)
+    jackknife_cuts = cuts if uncertainty == "jackknife" and len(cuts) >= 3 else None
+    f, z, u, fitted, rep, se = refine_modes_ml(unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines,
+                                               segments=jackknife_cuts, evidence=evidence, direction_scale=ch,
+                                               **options)
     out = np.array(shapes, dtype=complex)
     for k in np.flatnonzero(fitted):
         v = u[:, k] * ch
         out[:, k] = v / np.linalg.norm(v) * np.linalg.norm(shapes[:, k])
+    if uncertainty == "information":
+        return f, z, out, fitted, (se[0], z * se[1], se[2])
     if rep is None:
         return f, z, out, fitted, None
     # the jackknife spread of the direction's angle from the full-record one (rad)

@@ -121,8 +121,10 @@ def _spectrum(p, mod: _Model):
     return pp, q, d, v, vh, mod.gain[:, None, None] * (v @ pp.c @ vh) + pp.n[None]
 
 
-def _nll(p, mod: _Model, x):
-    """Whittle negative log-likelihood and its gradient (analytic) in the parameters ``p``."""
+def _nll(p, mod: _Model, x, *, per_bin: bool = False):
+    """Whittle negative log-likelihood and its gradient (analytic) in the parameters ``p``;
+    ``per_bin``: the gradient of each bin's term instead, shape (K, n_params) (the scores whose
+    outer products give the sandwich covariance)."""
     f0, z0 = mod.ref
     m, gain = mod.m, mod.gain
     pp, q, d, v, vh, s = _spectrum(p, mod)
@@ -131,34 +133,35 @@ def _nll(p, mod: _Model, x):
         chol = np.linalg.cholesky(s)
         sinv = np.linalg.inv(s)
     except np.linalg.LinAlgError:
-        return 1e30, np.zeros_like(p)
+        return 1e30, np.zeros((x.shape[0], p.size) if per_bin else p.shape)
     diag = np.real(np.diagonal(chol, axis1=1, axis2=2))
     if not np.all(diag > 0) or not np.all(np.isfinite(diag)):
-        return 1e30, np.zeros_like(p)
+        return 1e30, np.zeros((x.shape[0], p.size) if per_bin else p.shape)
     logdet = 2.0 * np.sum(np.log(diag))
     y = (sinv @ x[:, :, None])[..., 0]
     val = float(logdet + np.real(np.sum(np.conj(x) * y)))
     gmat = sinv - y[:, :, None] * np.conj(y)[:, None, :]                   # dL/dS^T, Hermitian
     a = gain[:, None, None] * (vh @ gmat @ v)                              # (K, m+q, m+q)
     b = gain[:, None, None] * (c[None] @ vh @ gmat)[:, :m]                 # (K, m, l)
-    grad = np.zeros_like(p)
+    total = (lambda t: np.sum(t, axis=0)) if not per_bin else (lambda t: t)
+    grad = np.zeros((x.shape[0], p.size)) if per_bin else np.zeros_like(p)
     bu = np.einsum("kra,ra->kr", b, u)                                     # (K, m)
     dd = -bu / d ** 2                                                      # dL/dd (times 2 Re)
     dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :])
     dd_dz = 2j * q / (2 * z0[None, :])
-    grad[:m] = 2 * np.real(np.sum(dd * dd_df, axis=0)) * f0 * z0
-    grad[m:2 * m] = 2 * np.real(np.sum(dd * dd_dz, axis=0)) * z
-    gv = 2 * np.real(np.sum(b / d[:, :, None], axis=0))                   # (m, l) dL/du
-    gv = (gv - np.sum(gv * u, axis=1, keepdims=True) * u) / norm[:, None]
+    grad[..., :m] = 2 * np.real(total(dd * dd_df)) * f0 * z0
+    grad[..., m:2 * m] = 2 * np.real(total(dd * dd_dz)) * z
+    gv = 2 * np.real(total(b / d[:, :, None]))                            # (m, l) dL/du
+    gv = (gv - np.sum(gv * u, axis=-1, keepdims=True) * u) / norm[:, None]
     i = 2 * m + m * mod.l
-    grad[2 * m:i] = gv.ravel()
-    ar = np.real(np.sum(a, axis=0))
-    ar = 0.5 * (ar + ar.T)
-    grad[i:i + tm[0].size] = (2 * ar @ lc)[tm]
+    grad[..., 2 * m:i] = gv.reshape(gv.shape[:-2] + (-1,))
+    ar = np.real(total(a))
+    ar = 0.5 * (ar + np.swapaxes(ar, -1, -2))
+    grad[..., i:i + tm[0].size] = (2 * ar @ lc)[..., tm[0], tm[1]]
     if mod.noise:
-        gr = np.real(np.sum(gmat, axis=0))
-        gr = 0.5 * (gr + gr.T)
-        grad[i + tm[0].size:] = (2 * gr @ ln)[tl]
+        gr = np.real(total(gmat))
+        gr = 0.5 * (gr + np.swapaxes(gr, -1, -2))
+        grad[..., i + tm[0].size:] = (2 * gr @ ln)[..., tl[0], tl[1]]
     return val, grad
 
 
@@ -190,8 +193,21 @@ def _fisher(p, mod: _Model):
         k = mod.w.size
         xs.append(np.broadcast_to(np.eye(l)[tl[0]][:, None, :], (tl[0].size, k, l)).astype(complex))
         ys.append(np.broadcast_to(ln[:, tl[1]].T[:, None, :], (tl[0].size, k, l)).astype(complex))
-    xw = np.einsum("kab,pkb->pka", linv, np.concatenate(xs))
-    yw = np.einsum("kab,pkb->pka", linv, np.concatenate(ys))
-    amat = xw[..., :, None] * np.conj(yw[..., None, :])
-    amat = (amat + np.conj(np.swapaxes(amat, -1, -2))).reshape(amat.shape[0], -1)
-    return np.real(np.conj(amat) @ amat.T)
+    # whitened, channel first: xw[a] = sum_b L^-1[:, a, b] x[b] (L^-1 lower triangular), each (P, K)
+    x = np.ascontiguousarray(np.concatenate(xs).transpose(2, 0, 1))
+    y = np.ascontiguousarray(np.concatenate(ys).transpose(2, 0, 1))
+    xw = [sum(linv[None, :, a, b] * x[b] for b in range(a + 1)) for a in range(l)]
+    yw = [sum(linv[None, :, a, b] * y[b] for b in range(a + 1)) for a in range(l)]
+    xr, xi = [t.real for t in xw], [t.imag for t in xw]
+    yr, yi = [t.real for t in yw], [t.imag for t in yw]
+    # A_i = X_i Y_i^H + Y_i X_i^H is Hermitian: in its real coordinates (the diagonal, and sqrt 2
+    # times the real and imaginary parts of the upper triangle) Re tr(A_i A_j) is a real inner
+    # product, so J is one real Gram matrix (a quarter of the complex one's arithmetic)
+    cols, s2 = [], np.sqrt(2.0)
+    for a in range(l):
+        cols.append(2.0 * (xr[a] * yr[a] + xi[a] * yi[a]))
+        for b in range(a + 1, l):
+            cols.append(s2 * (xr[a] * yr[b] + xi[a] * yi[b] + yr[a] * xr[b] + yi[a] * xi[b]))
+            cols.append(s2 * (xi[a] * yr[b] - xr[a] * yi[b] + yi[a] * xr[b] - yr[a] * xi[b]))
+    r = np.concatenate(cols, axis=1)
+    return r @ r.T
