@@ -140,9 +140,10 @@ def _stats(x, w=None):
 def test_learn_measures_the_error_of_its_table(problem):
     """``learn``'s check of its table against direct limits sees what the table leaves out: a
     table with one damping node is exact but for the 1.5 % speed lattice when damping is fixed
-    (the RMS log error of every cut below 2 %), and misses the damping's effect when damping is
-    free (the error of the typical cut above 5 %, a prior sd of 50 % moves the limit by tens of %);
-    the typical error is kept in the likelihood for predictions."""
+    (the RMS log error of the typical cut below 2 %; a cut whose speed puts a lobe cusp inside a
+    lattice cell for some samples, up to a few %: at most 6 %), and misses the damping's effect
+    when damping is free (the error of the typical cut above 5 %, a prior sd of 50 % moves the
+    limit by tens of %); the typical error is kept in the likelihood for predictions."""
     rng = np.random.default_rng(5)
     setup = problem.setup
     cuts = random_cuts(problem, 10, rng, immersions=(0.5, 1.0), depth_range=(0.5e-3, 20e-3))
@@ -150,14 +151,14 @@ def test_learn_measures_the_error_of_its_table(problem):
     grid = Grid.around(PriorSD().log_sds()[0], 0.0, 0.0, sdm_steps=(10.0, 20))
     table = build_table(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients, cuts.spindle_rpm,
                         cuts.radial_depth_m, cuts.down, grid, workers=1)
-    # the rate of wrong marks fixed (the default; these marks, a constant limit, fit no tool, and a learned
-    # rate lets the frequency spread past the table's range, where the clipped table is off for another reason)
+    # the rate of wrong marks fixed (the default; these marks, a constant limit, fit no tool)
     lk = Likelihood()
     fixed = learn(setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table, n_particles=500, seed=1,
                   likelihood=lk)
     free = learn(setup, problem.prior, cuts, free=("frequency", "stiffness", "damping"), table=table,
                  n_particles=500, seed=1, likelihood=lk)
-    assert fixed.model_error.shape == (cuts.n_cuts,) and np.all(fixed.model_error < 0.02)
+    assert fixed.model_error.shape == (cuts.n_cuts,) and np.median(fixed.model_error) < 0.02
+    assert np.all(fixed.model_error < 0.06)
     assert np.median(free.model_error) > 0.05
     assert free.posterior.likelihood.model_error == pytest.approx(np.sqrt(np.mean(free.model_error**2)))
     assert free.to_dict()["table_error"]["max"] == pytest.approx(free.model_error.max())
@@ -325,3 +326,46 @@ def test_learn_finds_the_share_of_wrong_marks_and_which_they_are(problem, flip):
     else:
         assert lo < flip < hi and lo > 0.05 and any("marks are noisy" in w for w in res.warnings)
         assert len(suspects) >= 4 and np.mean(flipped[suspects]) >= 0.75, (suspects, np.flatnonzero(flipped))
+
+
+def test_smc_keeps_to_its_support_and_samples_the_restricted_prior():
+    """A flat likelihood on a support ``1 <= x0 <= 2`` (prior N(0, 1) in two coordinates): every
+    sample inside, and the first coordinate distributed as the truncated normal (closed-form mean
+    ``(phi(1) - phi(2)) / (Phi(2) - Phi(1)) = 1.383`` and sd 0.267), the second untouched."""
+    from scipy.stats import truncnorm
+
+    from planner.learn.posterior import smc
+
+    def support(x):
+        return (x[:, 0] >= 1.0) & (x[:, 0] <= 2.0)
+
+    res = smc(lambda x: np.where(support(x), 0.0, -np.inf), np.ones(2), rng=np.random.default_rng(4),
+              n_particles=4000, support=support)
+    x = res.samples
+    assert np.all(support(x))
+    ref = truncnorm(1.0, 2.0)
+    se = ref.std() / np.sqrt(1000)  # about 1000 effective samples after the moves
+    assert abs(x[:, 0].mean() - ref.mean()) < 4 * se and abs(x[:, 0].std() / ref.std() - 1) < 0.1
+    assert abs(x[:, 1].mean()) < 0.15 and abs(x[:, 1].std() - 1) < 0.1
+
+
+def test_posterior_stays_inside_the_range_of_its_table(problem):
+    """A table over a frequency box of 0.5-1.5 prior sds (as the fine stage builds around the coarse
+    posterior), cuts labelled from a frequency in its middle: the posterior stays in the box.
+    Outside it the table clips to its edge value, a flat likelihood through which the prior drew
+    82 % of the samples out towards its centre before the posterior was restricted to the box
+    (a designed-cuts benchmark seed ended with its check of the table off by a median 50 %)."""
+    rng = np.random.default_rng(5)
+    setup = problem.setup
+    cuts = random_cuts(problem, 14, rng, immersions=(0.5, 1.0), depth_range=(0.5e-3, 20e-3))
+    sd = PriorSD().log_sds()
+    g = Grid.around(sd[0], 0.0, 0.0, span=3)
+    grid = Grid((0.5 * sd[0], 1.5 * sd[0]), g.log_speed_step, g.log_zeta, g.log_ratio, g.sdm_steps)
+    table = build_table(problem.prior, setup.tool, setup.cut, setup.material.cutting_coefficients, cuts.spindle_rpm,
+                        cuts.radial_depth_m, cuts.down, grid, method="zoa", workers=1)
+    cuts = label(cuts, np.exp(table.log_limit(*[[x] for x in (sd[0], 0.2, 0, 0, 0)])[0]), rng)
+    res = learn(setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table, n_particles=1000, seed=1,
+                validate=0)
+    u = res.posterior.samples
+    assert np.all(table.contains(u[:, 0], u[:, 2], u[:, 3], u[:, 4]))
+    assert not any("edge" in w for w in res.warnings)

@@ -81,21 +81,36 @@ def _ess(logw: np.ndarray) -> float:
 
 
 def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np.random.Generator,
-        n_particles: int = 2000, ess_fraction: float = 0.5, moves: int = 6, final_moves: int = 20) -> SMCResult:
+        n_particles: int = 2000, ess_fraction: float = 0.5, moves: int = 6, final_moves: int = 20,
+        support: Callable[[np.ndarray], np.ndarray] | None = None) -> SMCResult:
     """Tempered SMC from a zero-mean normal prior ``N(0, diag(prior_sd^2))`` to the posterior.
 
     Parameters
     ----------
     log_likelihood : callable
-        ``(N, d) -> (N,)``, vectorised.
+        ``(N, d) -> (N,)``, vectorised; ``-inf`` where a parameter set is impossible.
     prior_sd : array_like, shape (d,)
     rng : numpy.random.Generator
     n_particles, ess_fraction, moves, final_moves
         Particles; target ESS per tempering step; Metropolis moves per step and at ``beta = 1``.
+    support : callable, optional
+        ``(N, d) -> (N,) bool``: the region the posterior is restricted to (the log-likelihood
+        is ``-inf`` outside it). The particles then start from the prior restricted to it (by
+        rejection), so that the first tempering step does not collapse them; the evidence is
+        relative to that restricted prior.
     """
     sd = np.asarray(prior_sd, dtype=float)
     d = sd.size
     x = rng.standard_normal((n_particles, d)) * sd
+    if support is not None:
+        inside = support(x)
+        for _ in range(50):
+            if inside.all():
+                break
+            fresh = rng.standard_normal((n_particles, d)) * sd
+            keep = fresh[support(fresh)]
+            need = np.flatnonzero(~inside)[:keep.shape[0]]
+            x[need], inside[need] = keep[:need.size], True
     ll = log_likelihood(x)
     beta, log_z = 0.0, 0.0
     betas, acc_hist = [0.0], []

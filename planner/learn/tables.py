@@ -115,6 +115,20 @@ class LimitTable:
     def n_cuts(self) -> int:
         return int(self.rpm.size)
 
+    def contains(self, u_f, u_zeta, u_kt, u_kr) -> np.ndarray:
+        """Whether each parameter set lies inside the table's range (frequency, damping and
+        ``Krc/Ktc`` factors; stiffness and ``Ktc`` enter exactly): outside it :meth:`log_limit`
+        clips to the edge, which is no forward model at all, so ``learn`` keeps its posterior
+        inside."""
+        u_f, u_zeta, u_ratio = (np.atleast_1d(np.asarray(x, dtype=float)) for x in (u_f, u_zeta,
+                                                                                     np.subtract(u_kr, u_kt)))
+        tol = 1e-9
+        ok = (u_f >= self.grid.log_f_range[0] - tol) & (u_f <= self.grid.log_f_range[1] + tol)
+        for nodes, x in ((self.grid.log_zeta, u_zeta), (self.grid.log_ratio, u_ratio)):
+            if nodes.size > 1:
+                ok &= (x >= nodes[0] - tol) & (x <= nodes[-1] + tol)
+        return ok
+
     def log_limit(self, u_f, u_k, u_zeta, u_kt, u_kr, *, cuts=None) -> np.ndarray:
         """``log`` limit depth, shape ``(n_samples, n_cuts)``, for log-multipliers each of shape
         ``(n_samples,)``: frequency, stiffness, damping, ``Ktc``, ``Krc`` factors.
