@@ -86,8 +86,7 @@ def knn(train: CutTable, test: CutTable, d, *, k=5) -> np.ndarray:
 
 
 def subset(c: CutTable, n: int) -> CutTable:
-    return CutTable(*(getattr(c, f)[:n] for f in ("spindle_rpm", "axial_depth_m", "radial_depth_m", "down", "outcome",
-                                                   "weight", "feed_per_tooth_m", "detected")))
+    return c.take(slice(0, n))
 
 
 def acc(p, truth_stable):
@@ -95,7 +94,15 @@ def acc(p, truth_stable):
 
 
 # ----------------------------------------------------------------------------------- one seed
-def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Likelihood(), prior_scale=1.0):
+def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Likelihood(), prior_scale=1.0,
+             design=None, start=10, batch=5):
+    """One seed: the prior and the posterior after each size of ``sizes`` training cuts.
+
+    ``design=None``: the first n of a pool of random cuts (the issue's benchmark). ``design='boundary'``
+    (or ``'mrr'``): the first ``start`` random cuts of the same pool, then rounds of ``batch`` cuts
+    suggested by ``learn --suggest-for DESIGN`` from the posterior so far, labelled like the pool
+    (converged SDM, the same share flipped).
+    """
     rng = np.random.default_rng(seed)
     sd = PriorSD().log_sds()
     u = rng.uniform(-1.5, 1.5, 5) * sd
@@ -121,13 +128,16 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
                                       rr, method="sdm")
     out = {"seed": seed, "u_prior_in_sd": (u / sd).round(2).tolist(), "acc_prior": acc((held.axial_depth_m < prior_lim) * 1.0, truth),
            "boundary_prior_err": float(np.median(np.abs(boundary_prior / boundary_truth - 1))),
-           "boundary_prior_within_10": float(np.mean(np.abs(boundary_prior / boundary_truth - 1) < 0.10))}
-    for n in sizes:
+           "boundary_prior_within_10": float(np.mean(np.abs(boundary_prior / boundary_truth - 1) < 0.10)),
+           "design": design}
+    wide = PriorSD(*(prior_scale * getattr(PriorSD(), f) for f in ("frequency", "stiffness", "damping", "coefficients")))
+
+    def fit(train):
         t0 = time.perf_counter()
-        wide = PriorSD(*(prior_scale * getattr(PriorSD(), f) for f in ("frequency", "stiffness", "damping",
-                                                                         "coefficients")))
-        res = learn(prob.setup, prob.prior, subset(pool, n), seed=seed, likelihood=likelihood, prior_sd=wide)
-        t_learn = time.perf_counter() - t0
+        return learn(prob.setup, prob.prior, train, seed=seed, likelihood=likelihood, prior_sd=wide), \
+            time.perf_counter() - t0
+
+    def evaluate(n, res, t_learn):
         t0 = time.perf_counter()
         p = predict_cuts(res.posterior, prob.setup, held)
         t_pred = time.perf_counter() - t0
@@ -151,9 +161,28 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
         out[f"boundary_sd_{n}"] = float(np.median(np.std(np.log(lobes.limits), axis=0)))
         if n == max(sizes):
             out["post"] = res
-        log(f"  seed {seed} n={n}: prior {out['acc_prior']:.2f} post {out[f'acc_post_{n}']:.2f} "
-            f"learn {t_learn:.1f}s predict({held.n_cuts}) {t_pred:.1f}s cause {out[f'cause_{n}']} "
-            f"boundary err {out[f'boundary_median_err_{n}']:.3f} band {out[f'boundary_band_{n}']:.2f} eps {out[f'mislabel_{n}']:.3f}")
+        log(f"  seed {seed} n={n}{' ' + design if design else ''}: prior {out['acc_prior']:.2f} "
+            f"post {out[f'acc_post_{n}']:.2f} learn {t_learn:.1f}s predict({held.n_cuts}) {t_pred:.1f}s "
+            f"cause {out[f'cause_{n}']} boundary err {out[f'boundary_median_err_{n}']:.3f} "
+            f"band {out[f'boundary_band_{n}']:.2f} eps {out[f'mislabel_{n}']:.3f}")
+
+    if design is None:
+        for n in sizes:
+            evaluate(n, *fit(subset(pool, n)))
+    else:
+        train = subset(pool, start)
+        label_rng = np.random.default_rng(seed + 20_000)
+        while train.n_cuts < max(sizes):
+            res, t_learn = fit(train)
+            if train.n_cuts in sizes:
+                evaluate(train.n_cuts, res, t_learn)
+            lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=100)
+            k = min(batch, max(sizes) - train.n_cuts)
+            new, _, _ = suggest_cuts(lobes, k, criterion=design, likelihood=res.posterior.likelihood)
+            new = label(new, true_limits(prob, new.spindle_rpm, new.radial_depth_m, new.down), label_rng, flip=flip)
+            train = train.concat(new)
+        out["designed_cuts"] = train
+        evaluate(train.n_cuts, *fit(train))
     for n in base_sizes:
         tr = subset(pool, n)
         out[f"acc_logit_{n}"] = acc(logistic(tr, held, d), truth)
@@ -195,10 +224,7 @@ def suggest_vs_grid(seed, max_cuts, log):
         lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=100)
         s, _, _ = suggest_cuts(lobes, 1)
         st = truth_stable(s.spindle_rpm, s.axial_depth_m)
-        cuts = CutTable(*(np.concatenate([getattr(cuts, f), v]) for f, v in (
-            ("spindle_rpm", s.spindle_rpm), ("axial_depth_m", s.axial_depth_m), ("radial_depth_m", s.radial_depth_m),
-            ("down", s.down), ("outcome", np.where(st, 0, 1)), ("weight", s.weight),
-            ("feed_per_tooth_m", s.feed_per_tooth_m), ("detected", s.detected))))
+        cuts = cuts.concat(replace(s, outcome=np.where(st, 0, 1)))
         found = float(np.max((cuts.spindle_rpm * cuts.axial_depth_m)[cuts.outcome == 0], initial=0.0))
         if found >= 0.95 * best:
             need = cuts.n_cuts
@@ -317,6 +343,10 @@ def main(argv=None):
                     help="the learner's prior sds this many times the ones the truth is drawn from (wide priors)")
     ap.add_argument("--mislabel-sd", type=float, default=Likelihood().mislabel_sd,
                     help="prior log-odds sd of the learned mislabel rate (0: fixed at 5 %%)")
+    ap.add_argument("--design", choices=["boundary", "mrr"], default=None,
+                    help="training cuts: --start random ones, then rounds of --batch suggested by this criterion")
+    ap.add_argument("--start", type=int, default=10, help="random cuts before the first suggestion (--design)")
+    ap.add_argument("--batch", type=int, default=5, help="cuts suggested per round (--design)")
     ap.add_argument("--suggest-seeds", type=int, default=4)
     ap.add_argument("--suggest-max-cuts", type=int, default=18)
     ap.add_argument("--suggest-first", type=int, default=0, help="first suggest seed (split a run over processes)")
@@ -343,7 +373,8 @@ def main(argv=None):
             log(f"budget reached: {len(rows)} seeds done")
             break
         r, last_prob = run_seed(seed, args.sizes, base_sizes, args.held, log, flip=args.flip,
-                                likelihood=Likelihood(mislabel_sd=args.mislabel_sd), prior_scale=args.prior_scale)
+                                likelihood=Likelihood(mislabel_sd=args.mislabel_sd), prior_scale=args.prior_scale,
+                                design=args.design, start=args.start, batch=args.batch)
         rows.append(r)
         if args.save:
             with open(args.save, "wb") as fh:

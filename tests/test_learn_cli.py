@@ -43,12 +43,14 @@ def _run(capsys, argv):
     return code, out.out, out.err
 
 
-def test_learn_writes_a_posterior_that_reads_back(files, capsys):
+@pytest.mark.parametrize("suggest_for", ["mrr", "boundary"])
+def test_learn_writes_a_posterior_that_reads_back(files, capsys, suggest_for):
     d, problem = files
     code, out, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
                                    str(d / "cuts.csv"), "--method", "zoa", "--samples", "400", "--predict",
-                                   str(d / "predict.csv"), "--suggest", "2", "-o", str(d / "post.yaml"),
-                                   "--plot", str(d / "lobes.png"), "--rpm", "8000", "20000", "--json"])
+                                   str(d / "predict.csv"), "--suggest", "2", "--suggest-for", suggest_for,
+                                   "-o", str(d / "post.yaml"), "--plot", str(d / "lobes.png"), "--rpm", "8000", "20000",
+                                   "--json"])
     assert code == 0, err
     res = json.loads(out)
     for key in ("parameters", "map_model", "accuracy_before", "accuracy_after", "cause", "predictions",
@@ -60,6 +62,8 @@ def test_learn_writes_a_posterior_that_reads_back(files, capsys):
     p = [x["probability_stable"] for x in res["predictions"]]
     assert p[0] > 0.95 and p[1] < 0.05
     assert len(res["suggested"]) == 2 and all(s["outcome"] == "" for s in res["suggested"])
+    score = {"mrr": "expected_improvement_mrr_m3_s", "boundary": "expected_variance_reduction"}[suggest_for]
+    assert all(s[score] >= 0 for s in res["suggested"])
     # the share of wrong marks is reported with the rest (fixed by default), and the suspect marks listed
     assert res["parameters"]["mislabel_rate"]["fixed"] and isinstance(res["suspect_labels"], list)
     # the posterior file is an ordinary modal model for every reader (x_posterior ignored) ...

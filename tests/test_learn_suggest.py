@@ -43,3 +43,45 @@ def test_computation_modules_do_not_import_matplotlib():
             "planner.learn.cli; print('matplotlib' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _two_factor_lobes(rng, n=400):
+    """Limits whose low-speed half and high-speed half are scaled by two independent factors
+    (20 % log-sd each): what a cut teaches about one half says nothing about the other."""
+    rpm = np.geomspace(6000, 24000, 81)
+    base = 2e-3 * (1 + 0.5 * np.sin(rpm / 1500.0))
+    side = 1 / (1 + np.exp(-(np.log(rpm) - np.log(12000)) / 0.05))  # 0 below 12 krpm, 1 above
+    a, b = 0.2 * rng.standard_normal((2, n, 1))
+    lim = base[None, :] * np.exp(a * (1 - side)[None, :] + b * side[None, :])
+    q = {p: np.quantile(lim, 1 - p, axis=0) for p in (0.05, 0.5, 0.95)}
+    return ProbabilityLobes(rpm=rpm, limits=lim, levels=(0.05, 0.5, 0.95), quantiles=q, radial_depth_m=5e-3,
+                            milling="down"), side
+
+
+def test_boundary_cuts_reduce_the_variance_as_brute_force_reweighting_says_and_spread():
+    from scipy.special import expit
+
+    from planner.learn.likelihood import Likelihood
+
+    lobes, side = _two_factor_lobes(np.random.default_rng(1))
+    like = Likelihood()
+    cuts, share, _ = suggest_cuts(lobes, 2, criterion="boundary", likelihood=like, n_depth=40)
+    assert cuts.n_cuts == 2 and np.all(np.diff(share) < 0) and share[0] > 0
+    # the first pick's expected reduction, by brute force: reweight the samples by each outcome
+    log_lim = np.log(lobes.limits)
+    j = int(np.argmin(np.abs(lobes.rpm - cuts.spindle_rpm[0])))
+    q = like.mislabel + (1 - 2 * like.mislabel) * expit((np.log(cuts.axial_depth_m[0]) - log_lim[:, j])
+                                                         / like.scale())
+    v0 = np.sum(np.var(log_lim, axis=0))
+    after = 0.0
+    for wy in (q, 1 - q):
+        m = wy @ log_lim / wy.sum()
+        after += wy.mean() * np.sum(wy @ log_lim ** 2 / wy.sum() - m ** 2)
+    assert np.isclose(share[0], (v0 - after) / v0, rtol=1e-9)
+    # an informative cut (near the boundary there), and the second on the other half of the speeds
+    p = lobes.probability_stable([cuts.axial_depth_m[0]])[0][j]
+    assert 0.2 < p < 0.8
+    halves = [side[int(np.argmin(np.abs(lobes.rpm - r)))] > 0.5 for r in cuts.spindle_rpm]
+    assert halves[0] != halves[1]
+    with pytest.raises(ValueError, match="criterion"):
+        suggest_cuts(lobes, 1, criterion="information")

@@ -40,6 +40,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--cuts", required=True, help="cut-outcomes CSV (formats.md)")
     p.add_argument("--predict", default=None, help="cuts CSV whose probability of stability to report")
     p.add_argument("--suggest", type=int, default=None, metavar="N", help="the N test cuts that would teach most")
+    p.add_argument("--suggest-for", choices=["mrr", "boundary"], default="mrr",
+                   help="what the suggested cuts teach about: the best stable removal rate (default) or the "
+                        "stability boundary over the whole speed range")
     p.add_argument("-o", "--output", default=None, help="posterior model to write (MAP + x_posterior samples)")
     p.add_argument("--plot", default=None, metavar="FIG", help="lobes with 5/50/95 %% probability contours")
     p.add_argument("--prior-sd", nargs="+", default=None, metavar="GROUP=SD",
@@ -119,11 +122,16 @@ def _cmd_learn(args) -> int:
     if args.suggest or args.plot:
         lobes = probability_lobes(post, setup, rpm_range, method=args.method)
     if args.suggest:
-        sugg, gain, incumbent = suggest_cuts(lobes, args.suggest)
+        sugg, gain, incumbent = suggest_cuts(lobes, args.suggest, criterion=args.suggest_for,
+                                             likelihood=post.likelihood)
         fz = setup.cut.feed_per_tooth_m
         scale = setup.cut.radial_depth_m * fz * setup.tool.teeth / 60.0
-        payload["suggested"] = [dict(sugg.row(i), feed_per_tooth_m=fz, expected_improvement_mrr_m3_s=float(g * scale))
-                                for i, g in enumerate(gain)]
+        if args.suggest_for == "mrr":
+            payload["suggested"] = [dict(sugg.row(i), feed_per_tooth_m=fz,
+                                         expected_improvement_mrr_m3_s=float(g * scale)) for i, g in enumerate(gain)]
+        else:
+            payload["suggested"] = [dict(sugg.row(i), feed_per_tooth_m=fz, expected_variance_reduction=float(g))
+                                    for i, g in enumerate(gain)]
         payload["best_stable_mrr_m3_s"] = incumbent * scale
     payload["posterior_samples"] = int(post.samples.shape[0])
     # ---- outputs last, each atomically

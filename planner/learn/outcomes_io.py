@@ -12,7 +12,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,14 @@ class CutTable:
     @property
     def n_cuts(self) -> int:
         return int(self.spindle_rpm.size)
+
+    def take(self, rows) -> "CutTable":
+        """The cuts at ``rows`` (indices, a slice or a mask), in that order."""
+        return CutTable(*(np.asarray(getattr(self, f.name))[rows] for f in fields(self)))
+
+    def concat(self, other: "CutTable") -> "CutTable":
+        """These cuts followed by ``other``'s."""
+        return CutTable(*(np.concatenate([getattr(self, f.name), getattr(other, f.name)]) for f in fields(self)))
 
     def to_dict(self) -> dict:
         return {"rows": [self.row(i) for i in range(self.n_cuts)]}

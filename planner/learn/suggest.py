@@ -1,8 +1,11 @@
-"""Which test cut next: expected improvement of the best stable material removal rate.
+"""Which test cuts next: the best stable removal rate, or the stability boundary over the speed range.
 
 Candidates are cuts at the setup's own engagement (the production cut) on a grid of speeds and
-depths. The *incumbent* is the best MRR the posterior already guarantees, the largest
-``ap * rpm`` with P(stable) >= ``confidence`` (0.95); a candidate's expected improvement is
+depths. Two criteria (``robomill learn --suggest N [--suggest-for mrr|boundary]``):
+
+``mrr`` (the default): expected improvement of the best *proven* stable MRR. The incumbent is the
+best MRR the posterior already guarantees, the largest ``ap * rpm`` with P(stable) >= ``confidence``
+(0.95); a candidate's expected improvement is
 
     EI(c) = P(stable at c) * max(0, MRR(c) - MRR_incumbent),
 
@@ -11,27 +14,48 @@ expected-improvement rule of Jones, Schonlau & Welch, J. Global Optim. 13, 1998,
 outcome; Karandikar et al. choose test cuts in the same spirit). ``N`` cuts are picked greedily,
 each at least ``min_speed_gap`` (relative) away in speed from those already picked, so that one
 test does not make the next redundant.
+
+``boundary``: the expected reduction of the posterior variance of the log limit, summed over the
+speed range (log-spaced speeds, so each decade of speed counts alike): the cuts that teach most
+about where the boundary lies everywhere, not only near the best pocket (integrated-variance
+reduction for a level set, as in Bryan et al., NIPS 2005, with the outcome model of the likelihood:
+the soft boundary, the forward model's error and the share of wrong marks). For a candidate ``c``
+the two outcomes reweight the posterior samples by ``P(mark | theta)``; the expected variance
+after the cut is ``E[L^2] - sum_y P(y) mean_y(L)^2``, so the score is computable for every
+candidate at once from two weighted sums over the samples. Greedy batch: after each pick the
+samples are reweighted by the pick's more probable outcome (the "believer" heuristic of
+Ginsbourger, Le Riche & Carraro 2010), so the next pick is scored on what the first would leave
+unknown.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import expit
 
+from .likelihood import Likelihood
 from .outcomes_io import CutTable
 from .predictive import ProbabilityLobes
 
-__all__ = ["suggest_cuts"]
+__all__ = ["suggest_cuts", "CRITERIA"]
+
+CRITERIA = ("mrr", "boundary")
 
 
-def suggest_cuts(lobes: ProbabilityLobes, n: int, *, depth_range_m=None, n_depth: int = 60,
-                 confidence: float = 0.95, min_speed_gap: float = 0.03) -> tuple[CutTable, np.ndarray, float]:
-    """The ``n`` test cuts of largest expected improvement.
+def suggest_cuts(lobes: ProbabilityLobes, n: int, *, criterion: str = "mrr", likelihood: Likelihood | None = None,
+                 depth_range_m=None, n_depth: int = 60, confidence: float = 0.95,
+                 min_speed_gap: float = 0.03) -> tuple[CutTable, np.ndarray, float]:
+    """The ``n`` test cuts that teach most by ``criterion``.
 
     Parameters
     ----------
     lobes : ProbabilityLobes
         The posterior's limits over speed at the production engagement.
     n : int
+    criterion : {'mrr', 'boundary'}
+        See the module notes.
+    likelihood : Likelihood, optional
+        The outcome model of the posterior (``boundary``; default :class:`Likelihood()`).
     depth_range_m : (float, float), optional
         Depths considered (default: from half the lowest 95 % depth to twice the highest 5 % one).
 
@@ -39,13 +63,17 @@ def suggest_cuts(lobes: ProbabilityLobes, n: int, *, depth_range_m=None, n_depth
     -------
     cuts : CutTable
         Suggested cuts, no outcome.
-    expected_improvement : ndarray, shape (n,)
-        In units of ``ap * rpm`` (m rpm; multiply by ``ae fz N / 60`` for m^3/s).
+    score : ndarray, shape (n,)
+        ``mrr``: the expected improvement in units of ``ap * rpm`` (m rpm; multiply by
+        ``ae fz N / 60`` for m^3/s). ``boundary``: the expected reduction of the summed variance
+        of the log limit, as a share of what it was before the batch.
     incumbent : float
         Best ``ap * rpm`` with P(stable) >= ``confidence`` (0 when none).
     """
     if n < 1:
         raise ValueError(f"n must be >= 1, found {n}")
+    if criterion not in CRITERIA:
+        raise ValueError(f"criterion must be one of {', '.join(CRITERIA)}, found {criterion!r}")
     lo_q = lobes.quantiles.get(0.95, np.quantile(lobes.limits, 0.05, axis=0))
     hi_q = lobes.quantiles.get(0.05, np.quantile(lobes.limits, 0.95, axis=0))
     if depth_range_m is None:
@@ -55,20 +83,74 @@ def suggest_cuts(lobes: ProbabilityLobes, n: int, *, depth_range_m=None, n_depth
     mrr = depth[:, None] * lobes.rpm[None, :]
     safe = p >= confidence
     incumbent = float(mrr[safe].max()) if safe.any() else 0.0
-    ei = p * np.maximum(0.0, mrr - incumbent)
-    picked_rpm, picked_ap, gains = [], [], []
+    if criterion == "mrr":
+        picks, scores = _greedy_improvement(p * np.maximum(0.0, mrr - incumbent), lobes.rpm, n, min_speed_gap)
+    else:
+        picks, scores = _greedy_boundary(lobes, depth, n, likelihood or Likelihood(), min_speed_gap)
+    rpm = np.array([lobes.rpm[j] for _, j in picks], dtype=float)
+    ap = np.array([depth[i] for i, _ in picks], dtype=float)
+    k = rpm.size
+    cuts = CutTable(rpm, ap, np.full(k, lobes.radial_depth_m), np.full(k, lobes.milling == "down"), np.full(k, -1),
+                    np.ones(k), np.full(k, np.nan), np.zeros(k, bool))
+    return cuts, np.asarray(scores, dtype=float), incumbent
+
+
+def _too_close(rpm: np.ndarray, picked: list[float], gap: float) -> np.ndarray:
+    """Speeds within ``gap`` (relative) of a picked one."""
+    close = np.zeros(rpm.size, bool)
+    for r in picked:
+        close |= np.abs(rpm / r - 1.0) < gap
+    return close
+
+
+def _greedy_improvement(ei: np.ndarray, rpm: np.ndarray, n: int, gap: float):
+    picks, gains = [], []
     for _ in range(n):
-        score = ei.copy()
-        for r in picked_rpm:
-            score[:, np.abs(lobes.rpm / r - 1.0) < min_speed_gap] = -1.0
+        score = np.where(_too_close(rpm, [rpm[j] for _, j in picks], gap)[None, :], -1.0, ei)
         i, j = np.unravel_index(int(np.argmax(score)), score.shape)
         if score[i, j] < 0:
             break
-        picked_rpm.append(float(lobes.rpm[j]))
-        picked_ap.append(float(depth[i]))
+        picks.append((int(i), int(j)))
         gains.append(float(ei[i, j]))
-    k = len(picked_rpm)
-    cuts = CutTable(np.array(picked_rpm), np.array(picked_ap), np.full(k, lobes.radial_depth_m),
-                    np.full(k, lobes.milling == "down"), np.full(k, -1), np.ones(k), np.full(k, np.nan),
-                    np.zeros(k, bool))
-    return cuts, np.array(gains), incumbent
+    return picks, gains
+
+
+def _greedy_boundary(lobes: ProbabilityLobes, depth: np.ndarray, n: int, likelihood: Likelihood, gap: float):
+    """Greedy expected reduction of the summed variance of the log limit (module notes)."""
+    log_lim = np.log(lobes.limits)  # (S, R)
+    s_count = log_lim.shape[0]
+    eps = float(likelihood.mislabel)
+    # P(mark 'chatter' | sample) at every candidate (depth i, speed j): (S, D * R)
+    x = (np.log(depth)[None, :, None] - log_lim[:, None, :]) / float(likelihood.scale())
+    q = (eps + (1.0 - 2.0 * eps) * expit(x)).reshape(s_count, -1)
+    sq = log_lim**2
+    w = np.full(s_count, 1.0 / s_count)
+
+    def total_variance(w):
+        m = w @ log_lim / w.sum()
+        return float(np.sum(w @ sq / w.sum() - m**2))
+
+    v0 = total_variance(w)
+    picks, scores = [], []
+    n_rpm = lobes.rpm.size
+    for _ in range(n):
+        w = w / w.sum()
+        explained = np.zeros(q.shape[1])
+        for like in (q, 1.0 - q):  # outcomes chatter, stable
+            wy = w[:, None] * like  # (S, C)
+            py = wy.sum(axis=0)
+            m1 = wy.T @ log_lim  # (C, R): P(y) * mean_y
+            explained += np.sum(m1**2, axis=1) / np.maximum(py, 1e-300)
+        # expected variance after the cut = E[L^2] - sum_y P(y) mean_y^2; its reduction:
+        reduction = explained - np.sum((w @ log_lim) ** 2)
+        close = _too_close(lobes.rpm, [lobes.rpm[j] for _, j in picks], gap)
+        reduction = np.where(np.tile(close, depth.size), -np.inf, reduction)
+        c = int(np.argmax(reduction))
+        if not np.isfinite(reduction[c]):
+            break
+        i, j = divmod(c, n_rpm)
+        picks.append((int(i), int(j)))
+        scores.append(float(reduction[c]) / v0 if v0 > 0 else 0.0)
+        qc = q[:, c]
+        w = w * (qc if float(w @ qc) >= 0.5 else 1.0 - qc)  # believe the more probable outcome
+    return picks, scores
