@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from oma.modal import ModalModel
 from planner.learn.likelihood import CHATTER, STABLE, UNCERTAIN, Likelihood
 from planner.learn.posterior import PARAMETERS, PriorSD
 from planner.learn.synthetic import label, random_cuts, tool_problem
@@ -369,3 +370,21 @@ def test_posterior_stays_inside_the_range_of_its_table(problem):
     u = res.posterior.samples
     assert np.all(table.contains(u[:, 0], u[:, 2], u[:, 3], u[:, 4]))
     assert not any("edge" in w for w in res.warnings)
+
+
+def test_a_prior_of_several_modes_is_learned_with_shared_factors_and_says_so(problem):
+    """Two modes: every mode's frequency moves by the one frequency factor (the posterior's
+    samples give the same multiplier to both), and the warning says that modes off in different
+    directions cannot be told apart."""
+    two = ModalModel([900.0, 1300.0], [0.03, 0.04], [1.5e7, 3.0e7], [[0.6, 0.8, 0.0], [0.8, -0.6, 0.0]])
+    rng = np.random.default_rng(2)
+    cuts = random_cuts(problem, 8, rng, immersions=(0.5,), depth_range=(0.5e-3, 20e-3))
+    cuts = label(cuts, np.full(cuts.n_cuts, 4e-3), rng)
+    grid = Grid.around(PriorSD().log_sds()[0], 0.0, 0.0, sdm_steps=(10.0, 20))
+    table = build_table(two, problem.setup.tool, problem.setup.cut, problem.setup.material.cutting_coefficients,
+                        cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, grid, method="zoa", workers=1)
+    res = learn(problem.setup, two, cuts, free=("frequency", "stiffness"), table=table, n_particles=300, seed=0,
+                validate=0)
+    par = res.posterior.parameters()
+    assert par["natural_frequency_hz[0]"]["mean"] / 900.0 == pytest.approx(par["natural_frequency_hz[1]"]["mean"] / 1300.0)
+    assert any("2 modes" in w and "together" in w for w in res.warnings)

@@ -236,6 +236,10 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                                                  model_error=model_error), axis=0)
     p_loo = loo_probability_stable(tt, p_each)
     warnings = []
+    if prior.n_modes > 1 and np.any(sd[:3] > 0):
+        warnings.append(f"the prior has {prior.n_modes} modes and one factor per group (frequency, stiffness, "
+                        "damping) moves them all together: modes that are off in different directions cannot be "
+                        "told apart (a posterior per mode is not implemented)")
     for name in post.unpinned():
         warnings.append(f"the cuts do not pin down {name}: its posterior sd is still above 80 % of the prior's")
     acc_min = min(res.acceptance) if res.acceptance else 1.0
