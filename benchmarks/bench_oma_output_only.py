@@ -346,6 +346,8 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
     ap.add_argument("--no-hurco", action="store_true")
     ap.add_argument("--ml-directions", action="store_true", help="report the ML refinement's directions")
+    ap.add_argument("--ssi-derivatives", type=int, nargs="+", default=None,
+                    help="the SSI views (derivatives of the displacement; default: the library's)")
     ap.add_argument("--hurco-files", type=int, default=None)
     ap.add_argument("--alias-up-to", type=float, default=4.0,
                     help="Hurco: fold spindle multiples up to this many times fs (0.5: no aliasing assumed)")
@@ -354,7 +356,10 @@ def main(argv=None):
 
     with single_threaded_blas():
         for case in args.cases if args.seeds else ():
-            rows = run_ours(case, range(args.seeds), {"ml_directions": True} if args.ml_directions else None)
+            options = {"ml_directions": True} if args.ml_directions else {}
+            if args.ssi_derivatives:
+                options["ssi_derivatives"] = tuple(args.ssi_derivatives)
+            rows = run_ours(case, range(args.seeds), options)
             model = EXTRA if case == "extra" else TRUTH
             summarise(case, rows, model)
             if args.peer_seeds:
