@@ -148,6 +148,7 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
         out[f"table_error_{n}"] = float(np.median(res.model_error)) if res.model_error.size else float("nan")
         out[f"loo_{n}"] = (res.accuracy_before, res.accuracy_after)
         out[f"warn_{n}"] = len(res.warnings)
+        out[f"warnings_{n}"] = list(res.warnings)
         eps = res.posterior.mislabel_samples
         out[f"mislabel_{n}"] = float(np.median(eps)) if eps.size else likelihood.mislabel
         out[f"p_held_{n}"], out["truth_held"] = p, truth

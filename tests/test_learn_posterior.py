@@ -388,3 +388,38 @@ def test_a_prior_of_several_modes_is_learned_with_shared_factors_and_says_so(pro
     par = res.posterior.parameters()
     assert par["natural_frequency_hz[0]"]["mean"] / 900.0 == pytest.approx(par["natural_frequency_hz[1]"]["mean"] / 1300.0)
     assert any("2 modes" in w and "together" in w for w in res.warnings)
+
+
+def test_a_fine_table_placed_too_tightly_is_widened_once(problem, monkeypatch):
+    """The fine table's box is placed from the coarse stage's samples; when the fine posterior
+    presses against an edge of it that is not the prior's (here the box made to stop at the coarse
+    samples' median frequency), the table is rebuilt once over both stages' samples and the
+    posterior is sampled again: it ends inside, away from the edge, with no edge warning."""
+    from planner.learn import update as upd
+
+    real = Grid.covering
+    boxes = []
+
+    def tight(u_f, u_zeta, u_ratio, **kw):
+        g = real(u_f, u_zeta, u_ratio, **kw)
+        if not boxes:
+            g = replace(g, log_f_range=(g.log_f_range[0], float(np.median(u_f))))
+        boxes.append(g)
+        return g
+
+    monkeypatch.setattr(upd.Grid, "covering", staticmethod(tight))
+    rng = np.random.default_rng(8)
+    setup = problem.setup
+    cuts = random_cuts(problem, 30, rng, immersions=(0.5,), depth_range=(1e-3, 2e-3))
+    cuts = replace(cuts, down=np.ones(cuts.n_cuts, bool))
+    truth = reference_limits(problem.truth, setup.tool, setup.cut, problem.truth_coefficients, cuts.spindle_rpm,
+                             method="zoa")
+    # depths within a factor 1.5 of the true limit: cuts that pin the lobes, so the frequency
+    cuts = label(replace(cuts, axial_depth_m=truth * np.exp(rng.uniform(-0.4, 0.4, cuts.n_cuts))), truth, rng,
+                 flip=0.0)
+    res = learn(setup, problem.prior, cuts, free=("frequency", "stiffness"), method="zoa", n_particles=600, seed=3,
+                validate=0)
+    assert len(boxes) == 2 and boxes[1].log_f_range[1] > boxes[0].log_f_range[1]
+    u = res.posterior.samples
+    assert np.all(res.table.contains(u[:, 0], u[:, 2], u[:, 3], u[:, 4]))
+    assert not any("frequency posterior piles up" in w for w in res.warnings)

@@ -23,6 +23,9 @@ VALIDATION_SAMPLES = 12
 SUSPECT_LABEL = 0.5
 #: A posterior median mislabel rate above this is warned about.
 HIGH_MISLABEL = 0.15
+#: Samples within this share of a table's range of its edge "press against" it; more than
+#: ``EDGE_SHARE`` of them: the fine table is rebuilt wider once, and a warning if they still do.
+EDGE_BAND, EDGE_SHARE = 0.02, 0.05
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,37 @@ class LearnResult:
                 "suspect_labels": self.suspect_labels(),
                 "table_error": {"median": float(np.median(self.model_error)) if self.model_error.size else 0.0,
                                 "max": float(np.max(self.model_error, initial=0.0))}}
+
+
+def _edge_shares(u: np.ndarray, table: LimitTable, sd: np.ndarray) -> dict:
+    """Share of the samples (log-multipliers, (n, 5)) within 2 % of the table's range of its edge,
+    per learned table axis: frequency, damping, ``Krc/Ktc``."""
+    out = {}
+    for name, x, nodes, free in (("frequency", u[:, 0], np.array(table.grid.log_f_range), sd[0] > 0),
+                                 ("damping", u[:, 2], table.grid.log_zeta, sd[2] > 0),
+                                 ("Krc/Ktc", u[:, 4] - u[:, 3], table.grid.log_ratio, sd[3] > 0 or sd[4] > 0)):
+        width = nodes[-1] - nodes[0]
+        if free and width > 0:
+            out[name] = float(np.mean((x <= nodes[0] + EDGE_BAND * width) | (x >= nodes[-1] - EDGE_BAND * width)))
+    return out
+
+
+def _at_edge(u: np.ndarray, table: LimitTable, bounds: Grid, sd: np.ndarray) -> bool:
+    """Whether more than ``EDGE_SHARE`` of the samples press against an edge of the table's box
+    that is not also the prior's (``bounds``, the coarse range): there the box cut the posterior."""
+    lo_hi = {"frequency": (table.grid.log_f_range, bounds.log_f_range),
+             "damping": ((table.grid.log_zeta[0], table.grid.log_zeta[-1]), (bounds.log_zeta[0], bounds.log_zeta[-1])),
+             "Krc/Ktc": ((table.grid.log_ratio[0], table.grid.log_ratio[-1]),
+                         (bounds.log_ratio[0], bounds.log_ratio[-1]))}
+    x_of = {"frequency": u[:, 0], "damping": u[:, 2], "Krc/Ktc": u[:, 4] - u[:, 3]}
+    for name in _edge_shares(u, table, sd):
+        (lo, hi), (blo, bhi) = lo_hi[name]
+        band = EDGE_BAND * (hi - lo)
+        x = x_of[name]
+        if (lo > blo + 1e-9 and np.mean(x <= lo + band) > EDGE_SHARE) or \
+                (hi < bhi - 1e-9 and np.mean(x >= hi - band) > EDGE_SHARE):
+            return True
+    return False
 
 
 def grid_for(prior_log_sd: np.ndarray, *, coarse: bool = False) -> Grid:
@@ -205,6 +239,16 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                           method=method)
     t1 = time.perf_counter()
     res = smc(log_likelihood(table), x_sd, rng=rng, n_particles=n_particles, support=inside(table))
+    if coarse is not None and _at_edge(full(res.samples), table, grid_for(sd), sd):
+        # the fine posterior presses against its table's box where the prior's range goes on (the
+        # coarse stage placed the box too tightly): once, a table over both stages' samples
+        u1 = np.concatenate([u0, full(res.samples)])
+        table = table_for(prior, setup, cuts, Grid.covering(u1[:, 0], u1[:, 2], u1[:, 4] - u1[:, 3],
+                                                            bounds=grid_for(sd), max_zeta=FINE_NODES[0],
+                                                            max_ratio=FINE_NODES[1]),
+                          method=method)
+        stages.append(time.perf_counter() - t1)
+        res = smc(log_likelihood(table), x_sd, rng=rng, n_particles=n_particles, support=inside(table))
     t2 = time.perf_counter()
     model_error = np.zeros(cuts.n_cuts)
     if validate > 0 and active.size:
@@ -250,17 +294,10 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         if ratio_sd < 0.8:
             warnings.append(f"stability depends on stiffness / Ktc only: the cuts pin down their ratio "
                             f"(sd {ratio_sd:.2f} of the prior's), not each; the prior decides the split")
-    for name, i, nodes in (("frequency", 0, np.array(table.grid.log_f_range)), ("damping", 2, table.grid.log_zeta),
-                           ("Krc/Ktc", 4, table.grid.log_ratio)):
-        x = u[:, 4] - u[:, 3] if name == "Krc/Ktc" else u[:, i]
-        width = nodes[-1] - nodes[0]
-        if not active.size or width <= 0 or (name != "Krc/Ktc" and sd[i] == 0):
-            continue
-        at_edge = (x <= nodes[0] + 0.02 * width) | (x >= nodes[-1] - 0.02 * width)
-        if at_edge.mean() > 0.05:
-            where = "the prior's" if coarse is None or table is coarse else "the forward model's"
-            warnings.append(f"the {name} posterior piles up at the edge of {where} range ({at_edge.mean():.0%} of the "
-                            "samples): the prior may be too narrow, or the cuts contradict it; widen --prior-sd")
+    for name, share in _edge_shares(u, table, sd).items():
+        if share > EDGE_SHARE:
+            warnings.append(f"the {name} posterior piles up at the edge of the forward model's range ({share:.0%} of "
+                            "the samples): the prior may be too narrow, or the cuts contradict it; widen --prior-sd")
     acc_b, acc_a = _accuracy(p_prior, cuts), _accuracy(p_loo, cuts)
     if np.isfinite(acc_a) and acc_a < 0.7:
         warnings.append(f"cross-validated accuracy {acc_a:.2f} is low: the model cannot explain the outcomes "
