@@ -111,6 +111,8 @@ def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np
             keep = fresh[support(fresh)]
             need = np.flatnonzero(~inside)[:keep.shape[0]]
             x[need], inside[need] = keep[:need.size], True
+        if not inside.any():
+            raise RuntimeError("no prior sample falls inside the sampler's support (the forward model's range)")
     ll = log_likelihood(x)
     beta, log_z = 0.0, 0.0
     betas, acc_hist = [0.0], []
