@@ -285,7 +285,7 @@ def _cmd_diagnose(args) -> int:
 def _cmd_simulate(args) -> int:
     from stability.setup_io import read_setup
     from oma.record_io import write_record
-    from stability.simulate import BackgroundForce, SensorModel, simulate
+    from stability.simulate import BackgroundForce, SensorModel, SimulationDiverged, simulate
 
     setup = read_setup(args.setup)
     model = structure_from_args(args)
@@ -304,11 +304,14 @@ def _cmd_simulate(args) -> int:
         force_noise_variance_N2=args.force_noise_variance,
         displacement_resolution_m=args.displacement_resolution,
     )
-    result = simulate(
-        model, setup.tool, cut, cutting,
-        duration_s=args.duration, sample_rate_hz=args.sample_rate, background=background,
-        sensors=sensors, seed=args.seed, progress=not args.json,
-    )
+    try:
+        result = simulate(
+            model, setup.tool, cut, cutting,
+            duration_s=args.duration, sample_rate_hz=args.sample_rate, background=background,
+            sensors=sensors, seed=args.seed, progress=not args.json,
+        )
+    except SimulationDiverged as exc:
+        raise UsageError("--depth", exc.expected, exc.found) from None
     record = result.to_record(setup.tool, cut, material=setup.material, name=Path(args.output).name,
                               joints_deg=model.joints_deg)
     write_record(record, args.output)

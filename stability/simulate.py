@@ -73,6 +73,7 @@ __all__ = [
     "BackgroundForce",
     "SensorModel",
     "SimulationResult",
+    "SimulationDiverged",
     "simulate",
     "default_steps_per_tooth",
     "default_axial_slices",
@@ -95,6 +96,25 @@ MAX_SLICE_LAG_RAD = math.radians(2.0)
 BACKGROUND_ORDER = 4
 #: Pose drift: at most this many piecewise-constant segments of the modal parameters.
 MAX_DRIFT_SEGMENTS = 2048
+
+
+class SimulationDiverged(InputError):
+    """The response grew past the tool's own diameter: no milling model holds there.
+
+    Raised by :func:`simulate` for a cut so far beyond its stability limit that the vibration
+    grows without bound within the simulated time (the linear force model with the tool leaving
+    the cut still lets it grow where the cutting stiffness exceeds the structure's). Such a cut
+    is violent chatter; the record the simulation would give is not one a sensor could take.
+    ``time_s`` is when the tool-tip displacement first exceeded ``bound_m``.
+    """
+
+    def __init__(self, axial_depth_m: float, time_s: float, bound_m: float):
+        super().__init__(None, "axial_depth_m",
+                         f"a depth whose response stays below the tool diameter ({bound_m * 1e3:g} mm) over the "
+                         "simulated time",
+                         f"{axial_depth_m:g} m (diverged at t = {time_s:.4g} s: violent chatter)")
+        self.time_s = float(time_s)
+        self.bound_m = float(bound_m)
 
 
 # ------------------------------------------------------------------------------------- checks
@@ -631,6 +651,8 @@ def simulate(model: ModalModel, tool: Tool, cut: Cut, coefficients: CuttingCoeff
     ------
     InputError
         A parameter out of range (message ``<input>: field: expected ..., found ...``).
+    SimulationDiverged
+        The tool-tip displacement grew past the tool diameter (a cut far beyond its limit).
     """
     if isinstance(coefficients, Material):
         if coefficients.cutting_coefficients is None:
@@ -738,8 +760,13 @@ def simulate(model: ModalModel, tool: Tool, cut: Cut, coefficients: CuttingCoeff
                 _sim_kernel.run(k, k_end, *args)
                 bar.update(k_end - k)
                 k = k_end
+                if not np.all(np.abs(disp[k]) <= diameter):
+                    break
     else:
         _sim_kernel.run(0, n_steps, *args)
+    out = ~(np.abs(disp) <= diameter).all(axis=1)  # NaN and inf count as out
+    if out.any():
+        raise SimulationDiverged(depth, float(np.argmax(out)) * step, diameter)
     force = force.T
     disp = disp.T
 

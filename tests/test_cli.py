@@ -56,6 +56,17 @@ def test_missing_file_is_exit_2_naming_the_file(capsys, tmp_path):
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "kr500_acetal"
 
 
+def test_simulate_of_a_diverging_cut_is_exit_2_naming_the_depth(capsys, tmp_path):
+    code, out, err = _run(
+        capsys, "simulate", str(EXAMPLE / "setup.yaml"), "--model", str(EXAMPLE / "models" / "tool_mode.yaml"),
+        "--rpm", "3000", "--depth", "0.5", "--duration", "2", "-o", str(tmp_path / "rec"), "--json",
+    )
+    assert code == 2 and out == ""
+    assert err.startswith("robomill: --depth:") and "diverged" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "rec").exists()
+
+
 def test_lobes_json_has_matching_lists_and_writes_the_figure(capsys, tmp_path):
     fig = tmp_path / "lobes.png"
     code, out, err = _run(capsys, "lobes", str(EXAMPLE / "setup.yaml"), "--model",

@@ -30,6 +30,7 @@ from stability.simulate import (
     ProcessDamping,
     Runout,
     SensorModel,
+    SimulationDiverged,
     SimulationResult,
     default_axial_slices,
     default_steps_per_tooth,
@@ -226,6 +227,26 @@ def test_chatter_growth_rate_is_zero_at_the_boundary_and_signs_around_it():
     # near the boundary the growth rate of the dominant root is ~ zeta w_n (a / a_lim - 1) = +-1.26 /s
     assert rates[0] < -0.5 and rates[2] > 0.5
     assert abs(rates[1]) < 0.1 * min(-rates[0], rates[2])
+
+
+def test_a_cut_far_beyond_the_limit_is_an_error_not_a_record_of_infinities():
+    """At 30 times the limit the vibration grows past the tool's diameter within the record (the
+    tool leaving the cut does not bound it): an error saying when, not a scipy traceback from
+    resampling infinities; the same moment with the progress bar, which stops there."""
+    model = ModalModel([100.0], [0.02], [1e6], [FEED])
+    tool, cut = _slot(4)
+    f_min = minimize_scalar(lambda f: model.receptance([f])[0, 0, 0].real, bounds=(100.0, 150.0),
+                            method="bounded", options={"xatol": 1e-8}).x
+    depth, rpm = _slot4_exact_boundary(model, CHIP_ONLY.Krc_N_m2, f_min)
+    times = []
+    for progress in (False, True):
+        with pytest.raises(SimulationDiverged, match="axial_depth_m.*diverged") as info:
+            simulate(model, tool, cut, CHIP_ONLY, duration_s=2.0, spindle_rpm=rpm, axial_depth_m=30 * depth,
+                     progress=progress)
+        times.append(info.value.time_s)
+    assert 0.0 < times[0] < 2.0 and times[1] == times[0]
+    assert info.value.bound_m == tool.diameter_m
+    assert isinstance(info.value, InputError)
 
 
 # ------------------------------------------------------------------- 3. static deflection
