@@ -79,6 +79,27 @@ def test_aliased_lines_are_folded_and_not_mistaken_for_chatter():
     assert loud.chatter and loud.frequency_hz == pytest.approx(270.0, abs=0.5)
 
 
+@pytest.mark.parametrize("amplitude,chatter,confidence", [
+    (0.02, False, 1.0),  # a trace: energy ratio 4e-4 of the tooth line, 2.4 decades under 0.1
+    (0.29, False, 0.1),  # a clean line 16 % under the strength threshold: "no", but barely
+    (0.60, True, 0.56),  # ratio 0.36 (0.56 decades over 0.1); prominence decades higher
+])
+def test_confidence_is_the_margin_of_the_decisive_statistic(amplitude, chatter, confidence):
+    """A 2-flute tool at 2700 rpm (tooth line 90 Hz, amplitude 1) and a non-harmonic line at 137 Hz
+    of the given amplitude in weak noise: energy ratio ``amplitude^2`` (same noise, same window),
+    prominence far above 10 dB in every case, so the strength criterion decides. The confidence is
+    its distance from 0.1 in decades, clipped to [0.1, 1]."""
+    rng = np.random.default_rng(0)
+    fs, n = 1000.0, 16000
+    t = np.arange(n) / fs
+    x = np.cos(2 * np.pi * 90.0 * t) + amplitude * np.cos(2 * np.pi * 137.0 * t) + rng.normal(0, 1e-3, n)
+    res = detect_chatter(x[None, :], fs, 45.0, 2, refine=False)
+    assert res.prominence > 100.0
+    assert res.energy_ratio == pytest.approx(amplitude ** 2, rel=0.03)
+    assert res.chatter == chatter
+    assert res.confidence == pytest.approx(confidence, abs=0.02)
+
+
 def test_refinement_uses_folded_harmonics():
     fs = 1000.0
     t = np.arange(4000) / fs
@@ -100,6 +121,11 @@ def test_comparison_reports_chatter_and_the_predicted_limit():
 def test_detect_chatter_rejects_empty_signals():
     with pytest.raises(ValueError, match="no finite signal"):
         detect_chatter(np.full((3, 100), np.nan), 1000.0, 45.0, 2)
+    # a channel that overflowed is not a quiet one: no verdict rather than "stable"
+    x = np.sin(2 * np.pi * 90.0 * np.arange(4000) / 1000.0)[None, :].repeat(2, axis=0)
+    x[1, 3000:] = np.inf
+    with pytest.raises(ValueError, match="infinite"):
+        detect_chatter(x, 1000.0, 45.0, 2)
 
 
 # --------------------------------------------------------------------------- measured CNC cuts

@@ -79,6 +79,13 @@ class ChatterResult:
     flip_ratio : float
         Power of the half-tooth-frequency harmonics over the strongest tooth line (NaN for odd
         teeth).
+    confidence : float
+        How far the decisive statistics are from their thresholds, in decades, clipped to
+        ``[0.1, 1]`` (one decade: sure). Chatter: the smaller margin of the criteria that hold
+        (prominence and strength for a new line, the flip ratio for period doubling). No
+        chatter: the new-line verdict's margin is that of its most clearly failed criterion, the
+        flip verdict's that of the flip ratio; the smaller of the two. A 60 dB line that misses
+        the strength threshold by 10 % is a "no" with confidence 0.1, not 1.
     """
 
     chatter: bool
@@ -92,6 +99,7 @@ class ChatterResult:
     harmonic_mask: np.ndarray = field(repr=False)
     kind: str = "none"
     flip_ratio: float = float("nan")
+    confidence: float = float("nan")
 
     def __post_init__(self):
         object.__setattr__(self, "freq_hz", _ro(self.freq_hz))
@@ -105,7 +113,29 @@ class ChatterResult:
         return {"chatter": bool(self.chatter), "frequency_hz": num(self.frequency_hz),
                 "prominence": num(self.prominence), "energy_ratio": num(self.energy_ratio),
                 "spindle_hz": float(self.spindle_hz), "tooth_hz": float(self.tooth_hz), "kind": self.kind,
-                "flip_ratio": num(self.flip_ratio)}
+                "flip_ratio": num(self.flip_ratio), "confidence": num(self.confidence)}
+
+
+def _decades(value: float, threshold: float) -> float:
+    """``log10(value / threshold)``: +inf for an infinite value, -inf for zero, NaN for NaN."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.log10(value / threshold))
+
+
+def _confidence(kind: str, prominence: float, energy_ratio: float, flip_ratio: float, min_prominence: float,
+                min_energy_ratio: float, min_flip_ratio: float) -> float:
+    """:attr:`ChatterResult.confidence` from the statistics and their thresholds."""
+    hopf = min(_decades(prominence, min_prominence), _decades(energy_ratio, min_energy_ratio))
+    flip = _decades(flip_ratio, min_flip_ratio)
+    if kind == "hopf":
+        margin = hopf
+    elif kind == "flip":
+        margin = flip
+    else:  # both verdicts negative: no line found (NaN statistics) is a clear no, as is odd teeth
+        no_hopf = -hopf if np.isfinite(prominence) and np.isfinite(energy_ratio) else np.inf
+        no_flip = -flip if np.isfinite(flip_ratio) else np.inf
+        margin = min(no_hopf, no_flip)
+    return float(np.clip(margin, 0.1, 1.0))
 
 
 def comb_energy(xw, fs, f0, n_harm):
@@ -205,6 +235,8 @@ def detect_chatter(signals, sample_rate_hz: float, spindle_hz: float, teeth: int
     x = x[~np.any(np.isnan(x), axis=1)]
     if x.size == 0:
         raise ValueError("no finite signal to analyse")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("infinite values in the signals: nothing can be said of chatter from them")
     fs = float(sample_rate_hz)
     n = x.shape[-1]
     f0 = (refine_spindle_frequency_aliased(x, fs, spindle_hz, teeth=teeth, search=search) if refine
@@ -246,8 +278,10 @@ def detect_chatter(signals, sample_rate_hz: float, spindle_hz: float, teeth: int
     flip = bool(np.isfinite(flip_ratio) and flip_ratio >= min_flip_ratio)
     if not np.any(allowed):
         freq = float(fold_frequency(teeth * f0 / 2.0, fs)) if flip else float("nan")
-        return ChatterResult(flip, freq, float("nan"), float("nan"), f0, tooth, f, psd, mask,
-                             "flip" if flip else "none", flip_ratio)
+        kind = "flip" if flip else "none"
+        return ChatterResult(flip, freq, float("nan"), float("nan"), f0, tooth, f, psd, mask, kind, flip_ratio,
+                             _confidence(kind, np.nan, np.nan, flip_ratio, min_prominence, min_energy_ratio,
+                                         min_flip_ratio))
     k = int(np.flatnonzero(allowed)[np.argmax(psd[allowed])])
     idx = np.arange(f.size)
     ring = allowed & (np.abs(idx - k) >= 3) & (np.abs(idx - k) <= 12)
@@ -263,4 +297,6 @@ def detect_chatter(signals, sample_rate_hz: float, spindle_hz: float, teeth: int
     kind = "hopf" if hopf else ("flip" if flip else "none")
     if kind == "flip":
         freq = float(fold_frequency(teeth * f0 / 2.0, fs))
-    return ChatterResult(hopf or flip, freq, prominence, ratio, f0, tooth, f, psd, mask, kind, flip_ratio)
+    return ChatterResult(hopf or flip, freq, prominence, ratio, f0, tooth, f, psd, mask, kind, flip_ratio,
+                         _confidence(kind, prominence, ratio, flip_ratio, min_prominence, min_energy_ratio,
+                                     min_flip_ratio))
