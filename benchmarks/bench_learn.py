@@ -41,7 +41,7 @@ from planner.learn.outcomes_io import CutTable
 from planner.learn.posterior import PriorSD
 from planner.learn.predictive import predict_cuts, probability_lobes
 from planner.learn.suggest import suggest_cuts
-from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
+from planner.learn.synthetic import label, random_cuts, record_labels, tool_problem, true_limits
 from planner.learn.tables import reference_limits
 from planner.workers import default_workers
 
@@ -95,13 +95,18 @@ def acc(p, truth_stable):
 
 # ----------------------------------------------------------------------------------- one seed
 def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Likelihood(), prior_scale=1.0,
-             design=None, start=10, batch=5):
+             design=None, start=10, batch=5, labels="sdm"):
     """One seed: the prior and the posterior after each size of ``sizes`` training cuts.
 
     ``design=None``: the first n of a pool of random cuts (the issue's benchmark). ``design='boundary'``
     (or ``'mrr'``): the first ``start`` random cuts of the same pool, then rounds of ``batch`` cuts
     suggested by ``learn --suggest-for DESIGN`` from the posterior so far, labelled like the pool
     (converged SDM, the same share flipped).
+
+    ``labels='records'``: every training cut is simulated in the time domain and judged by the
+    chatter detection (:func:`planner.learn.synthetic.record_labels`; its confidence the weight, no
+    flips); held-out accuracy is then reported against the SDM truth and against the held-out cuts'
+    own record labels (what the shop would see).
     """
     rng = np.random.default_rng(seed)
     sd = PriorSD().log_sds()
@@ -110,10 +115,23 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
     d = prob.setup.tool.diameter_m
     n_max = max(max(sizes), max(base_sizes))
     pool = random_cuts(prob, n_max, rng)
-    pool = label(pool, true_limits(prob, pool.spindle_rpm, pool.radial_depth_m, pool.down), rng, flip=flip)
+    pool_lim = true_limits(prob, pool.spindle_rpm, pool.radial_depth_m, pool.down)
+    n_labelled = [0]
+
+    def labelled(cuts, limits, label_rng):
+        if labels == "sdm":
+            return label(cuts, limits, label_rng, flip=flip)
+        out, diverged = record_labels(prob, cuts, seed=1_000 * seed + 100 * n_labelled[0])
+        n_labelled[0] += 1
+        return out
+
+    pool = labelled(pool, pool_lim, rng)
     held = random_cuts(prob, n_held, np.random.default_rng(seed + 10_000))
     held_lim = true_limits(prob, held.spindle_rpm, held.radial_depth_m, held.down)
     truth = held.axial_depth_m < held_lim
+    held_rec = None
+    if labels == "records":
+        held_rec = record_labels(prob, held, seed=1_000 * seed + 99_000)[0].outcome == STABLE
     # prior's nominal model on the held-out cuts
     prior_lim = np.empty(held.n_cuts)
     keys = np.stack([held.radial_depth_m, held.down * 1.0], 1)
@@ -129,7 +147,10 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
     out = {"seed": seed, "u_prior_in_sd": (u / sd).round(2).tolist(), "acc_prior": acc((held.axial_depth_m < prior_lim) * 1.0, truth),
            "boundary_prior_err": float(np.median(np.abs(boundary_prior / boundary_truth - 1))),
            "boundary_prior_within_10": float(np.mean(np.abs(boundary_prior / boundary_truth - 1) < 0.10)),
-           "design": design}
+           "design": design, "labels": labels,
+           "label_agreement": float(np.mean((pool.outcome == STABLE) == (pool.axial_depth_m < pool_lim)))}
+    if held_rec is not None:
+        out["held_record_agreement"] = float(np.mean(held_rec == truth))
     wide = PriorSD(*(prior_scale * getattr(PriorSD(), f) for f in ("frequency", "stiffness", "damping", "coefficients")))
 
     def fit(train):
@@ -142,6 +163,8 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
         p = predict_cuts(res.posterior, prob.setup, held)
         t_pred = time.perf_counter() - t0
         out[f"acc_post_{n}"] = acc(p, truth)
+        if held_rec is not None:
+            out[f"acc_post_rec_{n}"] = acc(p, held_rec)
         out[f"time_learn_{n}"] = t_learn
         out[f"time_predict_{n}"] = t_pred
         out[f"cause_{n}"] = res.posterior.cause()
@@ -180,7 +203,7 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
             lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=100)
             k = min(batch, max(sizes) - train.n_cuts)
             new, _, _ = suggest_cuts(lobes, k, criterion=design, likelihood=res.posterior.likelihood)
-            new = label(new, true_limits(prob, new.spindle_rpm, new.radial_depth_m, new.down), label_rng, flip=flip)
+            new = labelled(new, true_limits(prob, new.spindle_rpm, new.radial_depth_m, new.down), label_rng)
             train = train.concat(new)
         out["designed_cuts"] = train
         evaluate(train.n_cuts, *fit(train))
@@ -290,6 +313,11 @@ def summary(rows, sizes, base_sizes, n_held, log):
             f"{np.median([r['acc_prior'] for r in low]):.3f}; posterior median "
             + ", ".join(f"{n} cuts {np.median([r[f'acc_post_{n}'] for r in low]):.3f}" for n in sizes)
             + "; logistic " + ", ".join(f"{n} cuts {np.median([r[f'acc_logit_{n}'] for r in low]):.3f}" for n in sizes))
+    if rows[0].get("labels") == "records":
+        log(f"marks from simulated records: agreement with the SDM truth, median over seeds "
+            f"{med('label_agreement'):.3f} (training pool), {med('held_record_agreement'):.3f} (held-out cuts); "
+            "posterior accuracy against the held-out cuts' own record marks: "
+            + ", ".join(f"{n} cuts {med(f'acc_post_rec_{n}'):.3f}" for n in sizes))
     for name in ("logit", "knn"):
         need = [n for n in base_sizes if med(f"acc_{name}_{n}") >= 0.9]
         log(f"{name}: cuts needed for a median of 90 %: {need[0] if need else '> %d' % max(base_sizes)}")
@@ -348,6 +376,9 @@ def main(argv=None):
                     help="training cuts: --start random ones, then rounds of --batch suggested by this criterion")
     ap.add_argument("--start", type=int, default=10, help="random cuts before the first suggestion (--design)")
     ap.add_argument("--batch", type=int, default=5, help="cuts suggested per round (--design)")
+    ap.add_argument("--labels", choices=["sdm", "records"], default="sdm",
+                    help="training marks from the converged SDM with --flip flipped, or from simulated records "
+                         "judged by the chatter detection (its confidence the weight)")
     ap.add_argument("--suggest-seeds", type=int, default=4)
     ap.add_argument("--suggest-max-cuts", type=int, default=18)
     ap.add_argument("--suggest-first", type=int, default=0, help="first suggest seed (split a run over processes)")
@@ -375,7 +406,7 @@ def main(argv=None):
             break
         r, last_prob = run_seed(seed, args.sizes, base_sizes, args.held, log, flip=args.flip,
                                 likelihood=Likelihood(mislabel_sd=args.mislabel_sd), prior_scale=args.prior_scale,
-                                design=args.design, start=args.start, batch=args.batch)
+                                design=args.design, start=args.start, batch=args.batch, labels=args.labels)
         rows.append(r)
         if args.save:
             with open(args.save, "wb") as fh:

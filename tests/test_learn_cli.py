@@ -9,9 +9,9 @@ import pytest
 
 from oma.modal_io import read_modal_model, write_modal_model
 from planner.cli import main
-from planner.learn.outcomes_io import CutsError, read_cuts
+from planner.learn.outcomes_io import CutTable, CutsError, detect_outcome, read_cuts, record_outcome
 from planner.learn.posterior_io import read_posterior
-from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
+from planner.learn.synthetic import label, random_cuts, record_labels, tool_problem, true_limits
 from stability.setup_io import write_setup
 
 
@@ -156,3 +156,41 @@ def test_read_cuts_detects_outcome_from_record(tmp_path):
     with pytest.raises(CutsError, match="unknown column"):
         (tmp_path / "d.csv").write_text("spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome,colour\n")
         read_cuts(tmp_path / "d.csv", tool=tool)
+
+
+def test_outcomes_detected_from_simulated_records_match_the_limit(tmp_path):
+    """Item 5 end to end, without a stand-in detector: cuts at half and at 1.6-2x the converged SDM
+    limit (slotting and a quarter immersion, up and down), simulated in the time domain from rest
+    for 2 s with a weak background force, judged by the chatter detection. Below the limit: stable,
+    sure (confidence 1); above: chatter, or diverged past the tool's diameter (also chatter). The
+    same verdict from the record written to disk and read back (``detect_outcome``)."""
+    from dataclasses import replace
+
+    from oma.record_io import write_record
+    from stability.simulate import simulate
+
+    problem = tool_problem()
+    d = problem.setup.tool.diameter_m
+    rpm = np.array([9000.0, 9000.0, 17000.0, 17000.0, 13000.0, 13000.0])
+    ae = np.array([1.0, 1.0, 0.25, 0.25, 0.5, 0.5]) * d
+    down = np.array([True, True, False, False, True, True])
+    lim = true_limits(problem, rpm, ae, down)
+    ap = lim * np.array([0.5, 1.6, 0.5, 2.0, 0.5, 1.8])
+    n = rpm.size
+    cuts = CutTable(rpm, ap, ae, down, np.full(n, -1), np.ones(n), np.full(n, np.nan), np.zeros(n, bool))
+    labelled, diverged = record_labels(problem, cuts, seed=3)
+    assert labelled.outcome.tolist() == [0, 1, 0, 1, 0, 1]
+    assert np.all(labelled.weight[::2] == 1.0) and np.all(labelled.weight[1::2] >= 0.3)
+    assert labelled.detected.all()
+    cut = replace(problem.setup.cut, radial_depth_m=float(ae[1]), spindle_rpm=float(rpm[1]), axial_depth_m=float(ap[1]))
+    if not diverged[1]:  # the chattering slot's record, written and read back
+        sim = simulate(problem.truth, problem.setup.tool, cut, problem.truth_coefficients, duration_s=2.0,
+                       sample_rate_hz=10_000.0, seed=7)
+        write_record(sim.to_record(problem.setup.tool, cut), tmp_path / "rec")
+        assert detect_outcome(tmp_path / "rec", {"spindle_rpm": rpm[1]}) == record_outcome(
+            sim.to_record(problem.setup.tool, cut))
+    cut = replace(cut, axial_depth_m=float(ap[0]))
+    sim = simulate(problem.truth, problem.setup.tool, cut, problem.truth_coefficients, duration_s=2.0,
+                   sample_rate_hz=10_000.0, seed=7)
+    write_record(sim.to_record(problem.setup.tool, cut), tmp_path / "rec0")
+    assert detect_outcome(tmp_path / "rec0", {"spindle_rpm": rpm[0]}) == (0, 1.0)

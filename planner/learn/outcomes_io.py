@@ -22,7 +22,7 @@ from oma.io import atomic_write
 
 from .likelihood import CHATTER, STABLE, UNCERTAIN
 
-__all__ = ["CutTable", "read_cuts", "write_cuts", "CutsError", "OUTCOMES", "MIN_CUTS"]
+__all__ = ["CutTable", "read_cuts", "write_cuts", "detect_outcome", "record_outcome", "CutsError", "OUTCOMES", "MIN_CUTS"]
 
 OUTCOMES = {"stable": STABLE, "chatter": CHATTER, "uncertain": UNCERTAIN}
 WORDS = {v: k for k, v in OUTCOMES.items()}
@@ -172,21 +172,25 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
 
 
 def detect_outcome(record_path, row) -> tuple[int, float]:
+    """Outcome and confidence of a cut from its record file (:func:`record_outcome`)."""
+    from oma.record_io import read_record
+
+    return record_outcome(read_record(record_path), row["spindle_rpm"])
+
+
+def record_outcome(record, spindle_rpm: float | None = None) -> tuple[int, float]:
     """Outcome and confidence of a cut from its record, by ``diagnose``'s chatter detection.
 
-    The confidence grows with how far the decisive statistic is from its threshold: for a line
-    found, ``log10(prominence / min_prominence)`` (one decade over the threshold: sure); for
-    none, how far the strongest line stays below it; clipped to ``[0.1, 1]``.
+    All the record's channels are analysed, at the record's spindle speed (``spindle_rpm`` when
+    the record has none). The confidence (:attr:`planner.diagnosis.chatter.ChatterResult.confidence`)
+    is how far the decisive statistics are from their thresholds, one decade: sure; clipped to
+    ``[0.1, 1]``.
     """
-    from oma.record_io import read_record
     from planner.diagnosis.chatter import detect_chatter
 
-    rec = read_record(record_path)
-    rpm = rec.cut.spindle_rpm if rec.cut.spindle_rpm else row["spindle_rpm"]
-    res = detect_chatter(rec.data, rec.sample_rate_hz, float(rpm) / 60.0, rec.tool.teeth)
-    prom = res.prominence if np.isfinite(res.prominence) and res.prominence > 0 else 1.0
-    conf = float(np.clip(abs(np.log10(prom / 10.0)), 0.1, 1.0))
-    return (CHATTER if res.chatter else STABLE), conf
+    rpm = record.cut.spindle_rpm if record.cut.spindle_rpm else spindle_rpm
+    res = detect_chatter(record.data, record.sample_rate_hz, float(rpm) / 60.0, record.tool.teeth)
+    return (CHATTER if res.chatter else STABLE), res.confidence
 
 
 def write_cuts(table: CutTable, path) -> Path:

@@ -11,10 +11,10 @@ from oma.modal import ModalModel
 from stability.setup import Limits, Setup
 
 from .likelihood import CHATTER, STABLE
-from .outcomes_io import CutTable
+from .outcomes_io import CutTable, record_outcome
 from .tables import reference_limits
 
-__all__ = ["Problem", "tool_problem", "true_limits", "random_cuts", "label"]
+__all__ = ["Problem", "tool_problem", "true_limits", "random_cuts", "label", "record_labels"]
 
 
 @dataclass(frozen=True)
@@ -84,3 +84,31 @@ def label(cuts: CutTable, limits: np.ndarray, rng: np.random.Generator, *, flip:
     flipped = rng.random(cuts.n_cuts) < flip
     out = np.where(chatter ^ flipped, CHATTER, STABLE)
     return replace(cuts, outcome=out)
+
+
+def record_labels(problem: Problem, cuts: CutTable, *, duration_s: float = 2.0, sample_rate_hz: float = 10_000.0,
+                  background_N2: float = 1.0, seed: int = 0) -> tuple[CutTable, np.ndarray]:
+    """Outcomes as a shop gets them from records: each cut simulated in the time domain (the
+    truth's structure and coefficients, the tool leaving the cut, a weak broadband background
+    force, ``duration_s`` from rest) and judged by ``diagnose``'s chatter detection, its
+    confidence the label's weight (:func:`planner.learn.outcomes_io.record_outcome`). A cut whose
+    vibration grows past the tool diameter is chatter with weight 1. No labels are flipped: the
+    detector's own misses near the limit (slowly growing chatter, a line weaker than the forced
+    one) are the noise. Returns the labelled table and which cuts diverged."""
+    from stability.simulate import BackgroundForce, SimulationDiverged, simulate
+
+    outcome, weight = np.empty(cuts.n_cuts, int), np.empty(cuts.n_cuts)
+    diverged = np.zeros(cuts.n_cuts, bool)
+    background = BackgroundForce(variance_N2=(background_N2,) * 3, bandwidth_hz=0.4 * sample_rate_hz)
+    for i in range(cuts.n_cuts):
+        cut = replace(problem.setup.cut, radial_depth_m=float(cuts.radial_depth_m[i]),
+                      milling="down" if cuts.down[i] else "up", spindle_rpm=float(cuts.spindle_rpm[i]),
+                      axial_depth_m=float(cuts.axial_depth_m[i]))
+        try:
+            sim = simulate(problem.truth, problem.setup.tool, cut, problem.truth_coefficients, duration_s=duration_s,
+                           sample_rate_hz=sample_rate_hz, background=background, seed=seed + i)
+        except SimulationDiverged:
+            outcome[i], weight[i], diverged[i] = CHATTER, 1.0, True
+            continue
+        outcome[i], weight[i] = record_outcome(sim.to_record(problem.setup.tool, cut))
+    return replace(cuts, outcome=outcome, weight=weight, detected=np.ones(cuts.n_cuts, bool)), diverged
