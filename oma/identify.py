@@ -38,6 +38,7 @@ from .modal import ModalModel
 from .record import Record
 from .signals import PreparedSignals, prepare_record
 from .synthetic import simulate_response
+from .quantised import MIN_BLOCKS
 from .timefit import NoModeFound, TimeFit, fit_time_domain
 
 __all__ = ["Identification", "identify", "modal_mapping", "frf_agreement", "METHODS", "ROBOT_BAND_HZ"]
@@ -178,7 +179,38 @@ class Identification:
             "method": self.method,
             "harmonics": [h.to_dict() for h in self.harmonics],
             "warnings": list(self.warnings),
+            "uncertainty": self.uncertainty(),
         }
+
+    def uncertainty(self, level: float = 0.95) -> dict[str, Any]:
+        """Standard errors and ``level`` intervals of the modes' frequency and damping.
+
+        From the block sandwich of the time-domain likelihood (:class:`oma.timefit.TimeFit`):
+        frequency ``f +- t se``, damping log-symmetric ``zeta exp(+-t se / zeta)``, ``t`` the
+        Student quantile with ``blocks - 1`` degrees of freedom. ``available`` is false (values
+        null) for the H1 method, the least-squares paths and records too short to tell their own
+        scatter (fewer than :data:`oma.quantised.MIN_BLOCKS` blocks).
+        """
+        from scipy import stats
+
+        tf = self.time_fit
+        ok = (tf is not None and tf.n_blocks >= MIN_BLOCKS  # the reported model is the time fit's
+              and np.array_equal(tf.model.natural_frequency_hz, self.model.natural_frequency_hz)
+              and np.array_equal(tf.model.damping_ratio, self.model.damping_ratio))
+        se_f = tf.frequency_se_hz if ok else np.full(self.model.n_modes, np.nan)
+        se_z = tf.damping_se if ok else np.full(self.model.n_modes, np.nan)
+        t = stats.t.ppf(0.5 + 0.5 * level, max((tf.n_blocks if ok else 2) - 1, 1))
+        modes = []
+        for f, z, sf, sz in zip(self.model.natural_frequency_hz, self.model.damping_ratio, se_f, se_z):
+            good = bool(np.isfinite(sf) and np.isfinite(sz))
+            modes.append({
+                "natural_frequency_hz": float(f), "frequency_standard_error_hz": _num(sf) if good else None,
+                "frequency_interval_hz": [_num(f - t * sf), _num(f + t * sf)] if good else [None, None],
+                "damping_ratio": float(z), "damping_standard_error": _num(sz) if good else None,
+                "damping_interval": [_num(z * np.exp(-t * sz / z)), _num(z * np.exp(t * sz / z))] if good
+                else [None, None]})
+        return {"available": bool(ok and all(m["frequency_standard_error_hz"] is not None for m in modes)),
+                "level": float(level), "blocks": int(tf.n_blocks) if tf is not None else 0, "modes": modes}
 
     # plots delegate to oma.plots (matplotlib imported there, only when called)
     def plot_frf(self, reference=None, *, axes=None, **kwargs):

@@ -91,6 +91,14 @@ class TimeFit:
         Modes removed, and modes split in two, by the information criterion.
     success : bool
     message : str
+    frequency_se_hz, damping_se : ndarray, shape (n_modes,)
+        Standard errors of the model's natural frequencies and damping ratios from the block
+        sandwich of the modal-form likelihood (:func:`oma.quantised._block_sandwich`: the
+        residuals' own correlation counted); NaN where not available (the least-squares paths,
+        or fewer than :data:`oma.quantised.MIN_BLOCKS` blocks of data).
+    n_blocks : int
+        Blocks behind those standard errors (their intervals use ``n_blocks - 1`` degrees of
+        freedom).
     """
 
     model: ModalModel
@@ -103,9 +111,15 @@ class TimeFit:
     split_modes_hz: tuple = ()
     success: bool = True
     message: str = ""
+    frequency_se_hz: np.ndarray | None = None
+    damping_se: np.ndarray | None = None
+    n_blocks: int = 0
 
     def __post_init__(self):
-        for name in ("residues", "residual_rms_m", "fit_error", "noise_scale_m"):
+        for name in ("frequency_se_hz", "damping_se"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(self.model.n_modes, np.nan))
+        for name in ("residues", "residual_rms_m", "fit_error", "noise_scale_m", "frequency_se_hz", "damping_se"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
 
 
@@ -746,7 +760,12 @@ def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source
     residues = np.einsum("mi,mj->mij", phi[sel], phi[sel])
     sigma = np.full(3, np.nan)
     sigma[outputs] = r1["sigma"]
+    # standard errors of log fn, log zeta -> of fn, zeta (to first order)
+    log_se, n_blocks, _ = r1["uncertainty"]()
+    se_f = fn[sel] * log_se[: fn.size][sel]
+    se_z = zeta[sel] * log_se[fn.size:][sel]
     return TimeFit(model=model, residues=residues, residual_rms_m=rms, fit_error=ferr, noise_scale_m=sigma,
                    quantised=True, dropped_modes_hz=tuple(dropped), split_modes_hz=tuple(split_hz),
-                   success=bool(r1["converged"]), message=message)
+                   success=bool(r1["converged"]), message=message, frequency_se_hz=se_f, damping_se=se_z,
+                   n_blocks=int(n_blocks))
 

@@ -151,3 +151,40 @@ def test_an_axis_without_motion_is_not_called_sufficiently_excited():
     assert idn.to_dict()["excitation_sufficient"]["Z"] is False
     assert any(w.startswith("Z: no tool-tip motion") for w in idn.warnings)
     assert idn.frf_fit_error[2] != idn.frf_fit_error[2]  # NaN: not measured
+
+
+@pytest.fixture(scope="module")
+def calibration_runs():
+    """Eight more independent 20 s records for the calibration of the standard errors."""
+    return [identify([synthetic_record(duration_s=20.0, rng=300 + s)]) for s in range(8)]
+
+
+def test_frequency_and_damping_standard_errors_are_calibrated_on_20s_records(calibration_runs):
+    """The block sandwich counts the residuals' own correlation: over 8 records the z-scores of the
+    Y and Z modes' frequency and damping (32 of them) have rms near 1 (the likelihood's curvature
+    alone gives 1.5-3x narrower bars, rms 2-3). The X mode's rms is 1.3-1.5 (bench: coverage
+    82-92 %), not asserted here. The intervals hold the estimate and use blocks - 1 degrees of
+    freedom."""
+    z = []
+    for idn in calibration_runs:
+        u = idn.to_dict()["uncertainty"]
+        assert u["available"] and u["blocks"] >= 8 and u["level"] == 0.95
+        tf, m = idn.time_fit, idn.model
+        for a in (1, 2):
+            j = int(np.argmax(m.directions[:, a] ** 2 / (m.stiffness_N_m * m.damping_ratio)))
+            z += [(m.natural_frequency_hz[j] - TRUTH.natural_frequency_hz[a]) / tf.frequency_se_hz[j],
+                  (m.damping_ratio[j] - TRUTH.damping_ratio[a]) / tf.damping_se[j]]
+            mode = u["modes"][j]
+            assert mode["frequency_interval_hz"][0] < mode["natural_frequency_hz"] < mode["frequency_interval_hz"][1]
+            assert mode["damping_interval"][0] < mode["damping_ratio"] < mode["damping_interval"][1]
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.5 < rms < 1.6, rms
+
+
+def test_short_records_report_no_standard_errors_rather_than_invented_ones(short_runs):
+    """A 1.1 s cut is one block: its own scatter cannot be told, so the errors are null."""
+    for idn in short_runs:
+        u = idn.to_dict()["uncertainty"]
+        assert not u["available"]
+        assert all(m["frequency_standard_error_hz"] is None and m["damping_interval"] == [None, None]
+                   for m in u["modes"])
