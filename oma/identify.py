@@ -188,8 +188,8 @@ class Identification:
         From the block sandwich of the time-domain likelihood (:class:`oma.timefit.TimeFit`):
         frequency ``f +- t se``, damping log-symmetric ``zeta exp(+-t se / zeta)``, ``t`` the
         Student quantile with ``blocks - 1`` degrees of freedom. ``available`` is false (values
-        null) for the H1 method, the least-squares paths and records too short to tell their own
-        scatter (fewer than :data:`oma.quantised.MIN_BLOCKS` blocks).
+        null) for the H1 method, the free-residue likelihood of rounded data, and records too
+        short to tell their own scatter (fewer than :data:`oma.quantised.MIN_BLOCKS` blocks).
         """
         from scipy import stats
 

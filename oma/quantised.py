@@ -405,11 +405,32 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
             "n_par": n_par, "uncertainty": uncertainty}
 
 
-#: Blocks of the sandwich: at least this many decay times of the slowest-decaying mode ...
+#: Blocks of the sandwich: this many decay times of the modes (median) ...
 BLOCK_DECAY_TIMES = 4.0
 #: ... and at least this long, s; fewer than MIN_BLOCKS blocks give no standard errors.
 MIN_BLOCK_S = 0.5
 MIN_BLOCKS = 8
+
+
+def block_labels(recs, fs, fn, zeta):
+    """Block of each sample of the stacked records, and the first sample of each block.
+
+    Blocks are :data:`BLOCK_DECAY_TIMES` decay times ``1 / (zeta w)`` long (the median over the
+    modes: a spurious lightly damped mode the fit keeps, e.g. 0.4 % at 9.9 Hz beside the 10 Hz
+    pair, must not make one block of a 20 s record; at least :data:`MIN_BLOCK_S`), contiguous
+    within a record; a record's tail joins its last block, a record shorter than a block is one.
+    """
+    decay = 1.0 / (np.asarray(zeta, dtype=float) * 2.0 * np.pi * np.asarray(fn, dtype=float))
+    block = max(BLOCK_DECAY_TIMES * float(np.median(decay)), MIN_BLOCK_S)
+    per = max(int(round(block * fs)), 1)
+    labels, g_count = [], 0
+    for rec in recs:
+        n = rec["y"].shape[1]
+        k_rec = max(n // per, 1)
+        labels.append(g_count + np.minimum(np.arange(n) // per, k_rec - 1))
+        g_count += k_rec
+    labels = np.concatenate(labels)
+    return labels, np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
 
 
 def _block_sandwich(state, output_jacobians, curvature, recs, fs, y, q, n_shared, k_own, n_out, n_m):
@@ -420,7 +441,7 @@ def _block_sandwich(state, output_jacobians, curvature, recs, fs, y, q, n_shared
     signal), so its inverse Hessian is too narrow by about the ratio of the residual spectrum's
     peak to its mean. The block (cluster-robust) sandwich ``H^-1 (sum_b s_b s_b^T) H^-1`` sums the
     per-sample scores over contiguous blocks long against the residuals' correlation (here
-    :data:`BLOCK_DECAY_TIMES` decay times ``1 / (zeta w)`` of the slowest-decaying mode), so
+    :data:`BLOCK_DECAY_TIMES` decay times ``1 / (zeta w)`` of the modes, :func:`block_labels`), so
     correlation inside a block is counted and blocks are nearly independent (Liang & Zeger 1986;
     the "segment jackknife" of the output-only modes without its refits). ``G / (G - 1)`` corrects
     the sum for the estimated mean. The error scales are held at their optimum (one sits on its
@@ -431,16 +452,8 @@ def _block_sandwich(state, output_jacobians, curvature, recs, fs, y, q, n_shared
     inverse Hessian alone) for comparison, each of shape (2 n_m,).
     """
     th, _, _, lsig, _, own_s = state
-    fn, zeta = np.exp(th[:n_m]), np.exp(th[n_m:])
-    block = max(BLOCK_DECAY_TIMES / float(np.min(zeta * 2.0 * np.pi * fn)), MIN_BLOCK_S)
-    labels, g_count = [], 0
-    per = max(int(round(block * fs)), 1)
-    for rec in recs:
-        n = rec["y"].shape[1]
-        k_rec = max(n // per, 1)  # the record's tail joins its last block
-        labels.append(g_count + np.minimum(np.arange(n) // per, k_rec - 1))
-        g_count += k_rec
-    labels = np.concatenate(labels)
+    labels, starts = block_labels(recs, fs, np.exp(th[:n_m]), np.exp(th[n_m:]))
+    g_count = starts.size
     js, pred = output_jacobians(state)
     grad, hess = curvature(state)
     keep = np.arange(n_shared + n_out * k_own)  # error scales held
@@ -453,7 +466,6 @@ def _block_sandwich(state, output_jacobians, curvature, recs, fs, y, q, n_shared
     model_se = np.sqrt(np.maximum(np.diag(h_inv)[: 2 * n_m], 0.0))
     if g_count < MIN_BLOCKS:
         return np.full(2 * n_m, np.nan), g_count, model_se
-    starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])  # labels are contiguous runs
     scores = np.zeros((g_count, keep.size))
     for k in range(n_out):
         _, g, _, _ = interval_terms(y[k], pred[k], q, np.exp(lsig[k]))

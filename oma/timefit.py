@@ -55,7 +55,7 @@ from ._linalg import blas_single_threaded, lstsq_normal
 from .modal_fit import _residue_modes
 from .harmonics import Harmonics, fit_harmonic_signal, harmonic_basis
 from .modal import ModalModel
-from .quantised import MIN_DAMPING, free_residue_ml, modal_form_ml
+from .quantised import MIN_BLOCKS, MIN_DAMPING, block_labels, free_residue_ml, modal_form_ml
 from .signals import PreparedSignals
 from .synthetic import mode_filter
 
@@ -92,10 +92,12 @@ class TimeFit:
     success : bool
     message : str
     frequency_se_hz, damping_se : ndarray, shape (n_modes,)
-        Standard errors of the model's natural frequencies and damping ratios from the block
-        sandwich of the modal-form likelihood (:func:`oma.quantised._block_sandwich`: the
-        residuals' own correlation counted); NaN where not available (the least-squares paths,
-        or fewer than :data:`oma.quantised.MIN_BLOCKS` blocks of data).
+        Standard errors of the model's natural frequencies and damping ratios from a block
+        sandwich (the residuals' own correlation counted) of the modal-form likelihood
+        (:func:`oma.quantised._block_sandwich`) or of the least squares
+        (:func:`_ls_block_sandwich`); NaN where not available (the free-residue likelihood of
+        rounded data with different input and output axes, or fewer than
+        :data:`oma.quantised.MIN_BLOCKS` blocks of data).
     n_blocks : int
         Blocks behind those standard errors (their intervals use ``n_blocks - 1`` degrees of
         freedom).
@@ -674,6 +676,8 @@ def fit_time_domain(
     nuis_part = beta[:, nuis_cols] @ xd[:, nuis_cols].T
     rms, ferr = _misfit(y_all, pred, nuis_part, recs, outputs, quantised)
     a, res_c = prob.unpack_residues(list(beta), fn.size)
+    pole_se, n_blocks = (np.full(2 * fn.size, np.nan), 0) if quantised else \
+        _ls_block_sandwich(prob, fn, zeta, beta, xd, y_all - pred)
 
     freqs, zetas, ks, dirs, keep = [], [], [], [], []
     measured = np.zeros((3, 3), dtype=bool)
@@ -707,12 +711,56 @@ def fit_time_domain(
         stiffness_N_m=np.array(ks)[order], directions=np.array(dirs)[order],
         residual_compliance_m_N=res_sym, source=source,
     )
+    pole = keep[order]
     return TimeFit(
-        model=model, residues=a[keep[order]], residual_rms_m=rms, fit_error=ferr,
+        model=model, residues=a[pole], residual_rms_m=rms, fit_error=ferr,
         noise_scale_m=sigma_v, quantised=bool(quantised),
         dropped_modes_hz=tuple(dropped), split_modes_hz=tuple(split_hz), success=bool(converged),
-        message=message,
+        message=message, frequency_se_hz=fn[pole] * pole_se[pole], damping_se=zeta[pole] * pole_se[fn.size + pole],
+        n_blocks=n_blocks,
     )
+
+
+def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6):
+    """Block-sandwich standard errors of ``(log fn, log zeta)`` of the least-squares fit.
+
+    The poles solve ``sum_o w_o^2 d_o^T r_o = 0`` with ``d_o`` the derivative of output ``o``'s
+    prediction projected off the linear columns (variable projection) and ``w_o`` the fit's output
+    weights; their influence is ``S^-1 sum_o w_o^2 d_o^T r_o`` with ``S = sum_o w_o^2 d_o^T d_o``,
+    and the scores summed over blocks (:func:`oma.quantised.block_labels`) give the sandwich, as
+    for the likelihood (:func:`oma.quantised._block_sandwich`), with the white-residual standard
+    error ``sigma_o^2 = rss_o / (N - K)`` as a floor. Returns the standard errors (2 n_modes,) and
+    the number of blocks (NaN errors below :data:`oma.quantised.MIN_BLOCKS`).
+    """
+    n_m = fn.size
+    _, starts = block_labels(prob.records, prob.fs, fn, zeta)
+    g_count = starts.size
+    nan = np.full(2 * n_m, np.nan)
+    if g_count < MIN_BLOCKS or n_m == 0:
+        return nan, g_count
+    n_tot, k = xd.shape
+    q_x, _ = np.linalg.qr(xd)
+    w2 = prob.out_weight ** 2
+    d = np.zeros((beta.shape[0], n_tot, 2 * n_m))
+    for j in range(2 * n_m):
+        f1, z1 = fn.copy(), zeta.copy()
+        if j < n_m:
+            f1[j] *= np.exp(step)
+        else:
+            z1[j - n_m] *= np.exp(step)
+        dx = (prob.full_design(f1, z1)[0] - xd) / step
+        d[:, :, j] = beta @ dx.T
+    d -= np.einsum("nk,okj->onj", q_x, np.einsum("nk,onj->okj", q_x, d))  # projected off the linear columns
+    s_mat = np.einsum("o,oni,onj->ij", w2, d, d)
+    scores = np.add.reduceat(np.einsum("o,onj,on->nj", w2, d, resid), starts, axis=0)
+    sigma2 = np.sum(resid ** 2, axis=1) / max(n_tot - k, 1)
+    try:
+        s_inv = np.linalg.inv(s_mat)
+    except np.linalg.LinAlgError:
+        return nan, g_count
+    model = s_inv @ np.einsum("o,oni,onj->ij", w2 ** 2 * sigma2, d, d) @ s_inv
+    cov = s_inv @ (scores.T @ scores) @ s_inv * (g_count / (g_count - 1.0))
+    return np.maximum(np.sqrt(np.maximum(np.diag(cov), 0.0)), np.sqrt(np.maximum(np.diag(model), 0.0))), g_count
 
 
 def _misfit(y_all, pred, nuis_part, recs, outputs, quantised):

@@ -178,8 +178,18 @@ def _cmd_identify(args) -> int:
     def human(p):
         m = result.model
         lines = [f"{m.n_modes} modes ({'trusted' if result.trusted else 'NOT trusted'}):"]
-        lines += [f"  {f:7.2f} Hz  zeta {100 * z:5.2f} %  k {k:.3g} N/m  direction {np.round(u, 3).tolist()}"
-                  for f, z, k, u in zip(m.natural_frequency_hz, m.damping_ratio, m.stiffness_N_m, m.directions)]
+        unc = p["uncertainty"]
+
+        def bars(mode):
+            if not unc["available"]:
+                return ""
+            fi, zi = mode["frequency_interval_hz"], mode["damping_interval"]
+            return (f"  ({100 * unc['level']:.0f} %: {fi[0]:.2f}-{fi[1]:.2f} Hz, zeta {100 * zi[0]:.2f}-"
+                    f"{100 * zi[1]:.2f} %)")
+
+        lines += [f"  {f:7.2f} Hz  zeta {100 * z:5.2f} %  k {k:.3g} N/m  direction {np.round(u, 3).tolist()}{bars(mu)}"
+                  for f, z, k, u, mu in zip(m.natural_frequency_hz, m.damping_ratio, m.stiffness_N_m, m.directions,
+                                            unc["modes"])]
         lines += [f"  warning: {w}" for w in result.warnings]
         if "reference_agreement" in p:
             ra = p["reference_agreement"]

@@ -188,3 +188,21 @@ def test_short_records_report_no_standard_errors_rather_than_invented_ones(short
         assert not u["available"]
         assert all(m["frequency_standard_error_hz"] is None and m["damping_interval"] == [None, None]
                    for m in u["modes"])
+
+
+def test_least_squares_path_standard_errors_are_calibrated_on_acceleration_records():
+    """Accelerometers are not rounded like the tracker: the least-squares path, with its own block
+    sandwich. Six 20 s acceleration records at 2700 rpm (tooth lines at 90 Hz and up): the z-scores
+    of every axis's dominant mode (36) have rms near 1 (bench over 40 records: 1.04-1.26)."""
+    z = []
+    for s in range(6):
+        rec = synthetic_record(duration_s=20.0, rng=500 + s, output="acceleration", spindle_rpm=2700.0)
+        idn = identify([rec])
+        tf, m = idn.time_fit, idn.model
+        assert not tf.quantised and idn.to_dict()["uncertainty"]["available"]
+        for a in range(3):
+            j = int(np.argmax(m.directions[:, a] ** 2 / (m.stiffness_N_m * m.damping_ratio)))
+            z += [(m.natural_frequency_hz[j] - TRUTH.natural_frequency_hz[a]) / tf.frequency_se_hz[j],
+                  (m.damping_ratio[j] - TRUTH.damping_ratio[a]) / tf.damping_se[j]]
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.5 < rms < 1.7, rms
