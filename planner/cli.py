@@ -91,7 +91,13 @@ def _cmd_identify_output_only(args) -> int:
     payload = result.to_dict()
     if all(r.has("force") for r in records) and result.model.n_modes:
         force_based = identify(records, method=args.method)
-        comparison = compare_models(result.model, force_based.model)
+        fb_modes = force_based.uncertainty()["modes"]
+        comparison = compare_models(
+            result.model, force_based.model, standard_errors=(result.modes.freq_se_hz, result.modes.damping_se),
+            reference_standard_errors=([np.nan if m["frequency_standard_error_hz"] is None else m["frequency_standard_error_hz"]
+                                        for m in fb_modes],
+                                       [np.nan if m["damping_standard_error"] is None else m["damping_standard_error"]
+                                        for m in fb_modes]))
         ok = [c["stiffness_ratio"] for c, far in zip(comparison, result.stiffness.too_far if result.stiffness
                                                                   is not None else [True] * len(comparison))
               if c.get("stiffness_ratio") is not None and not far]
@@ -120,9 +126,11 @@ def _cmd_identify_output_only(args) -> int:
                          f"direction {np.round(mode['direction'], 3).tolist()}")
         for c in p.get("force_based", {}).get("comparison", []):
             if c.get("reference_natural_frequency_hz") is not None:
+                zs = "" if c.get("frequency_z") is None or c.get("damping_z") is None else \
+                    f" (differences {c['frequency_z']:+.1f} and {c['damping_z']:+.1f} combined sds)"
                 lines.append(f"  vs force-based {c['reference_natural_frequency_hz']:.2f} Hz: frequency x"
                              f"{c['frequency_ratio']:.3f}, damping x{c['damping_ratio_ratio']:.2f}, stiffness x"
-                             + (f"{c['stiffness_ratio']:.2f}" if c["stiffness_ratio"] is not None else "?"))
+                             + (f"{c['stiffness_ratio']:.2f}" if c["stiffness_ratio"] is not None else "?") + zs)
         ratio = p.get("force_based", {}).get("coefficient_ratio")
         if ratio is not None:
             lines.append(f"  the cutting coefficients look x{ratio:.2f} of what the force channels say "

@@ -181,6 +181,12 @@ def test_compare_models_pairs_by_frequency_and_direction():
     assert np.allclose([e["stiffness_ratio"] for e in c], 1.1)
     lone = ModalModel([50.0], [0.02], [1e6], [[1, 0, 0]])
     assert compare_models(lone, TRUTH)[0]["reference"] is None
+    assert c[0]["frequency_z"] is None  # no standard errors given
+    # with them: the difference over the combined standard error
+    shifted = TRUTH.with_modes(natural_frequency_hz=TRUTH.natural_frequency_hz + 0.03)
+    se = (np.full(3, 0.03), np.full(3, 0.004))
+    c = compare_models(shifted, TRUTH, standard_errors=se, reference_standard_errors=(np.full(3, 0.04), np.full(3, 0.003)))
+    assert np.allclose([e["frequency_z"] for e in c], 0.03 / 0.05) and np.allclose([e["damping_z"] for e in c], 0.0)
 
 
 def test_errors():
@@ -211,6 +217,8 @@ def test_cli_output_only_json_with_force_comparison(tmp_path, capsys):
     assert len(payload["stiffness_uncertainty"]) == len(payload["model"]["modes"]) == 3
     comp = payload["force_based"]["comparison"]
     assert all(abs(c["frequency_ratio"] - 1) < 0.03 for c in comp)
+    # both ways carry standard errors: the differences in combined sds are finite and modest
+    assert all(c["frequency_z"] is not None and abs(c["frequency_z"]) < 5 for c in comp)
     assert code in (0, 1) and ((tmp_path / "m.yaml").exists() == (code == 0))
     assert main(["identify", str(tmp_path / "rec"), "--output-only", "--coefficient-uncertainty", "2"]) == 2
     assert "coefficient-uncertainty" in capsys.readouterr().err

@@ -251,26 +251,44 @@ def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coe
     return result, ""
 
 
-def compare_models(output_only: ModalModel, reference: ModalModel) -> list[dict[str, Any]]:
+def compare_models(output_only: ModalModel, reference: ModalModel, *, standard_errors=None,
+                   reference_standard_errors=None) -> list[dict[str, Any]]:
     """Pair each output-only mode with the reference mode nearest in frequency and direction.
 
     Returns one entry per output-only mode: its frequency, the reference's, and the ratios of
     frequency, damping and stiffness (output-only over reference); ``None`` when nothing pairs
-    (no reference mode within 10 % in frequency with ``|u . u_ref| > 0.7``).
+    (no reference mode within 10 % in frequency with ``|u . u_ref| > 0.7``). With the standard
+    errors of both (``(frequency_se_hz, damping_se)`` per model, in mode order), also
+    ``frequency_z`` and ``damping_z``: the difference over the combined standard error (|z| < 2:
+    the two agree to their uncertainty).
     """
+    def errors(se, n):
+        if se is None:
+            return np.full(n, np.nan), np.full(n, np.nan)
+        f_se, z_se = (np.asarray(v, dtype=float) for v in se)
+        ok = f_se.shape == (n,) and z_se.shape == (n,)
+        return (f_se, z_se) if ok else (np.full(n, np.nan), np.full(n, np.nan))
+
+    se_f, se_z = errors(standard_errors, output_only.n_modes)
+    ref_f, ref_z = errors(reference_standard_errors, reference.n_modes)
     out = []
-    for f, z, k, u in zip(output_only.natural_frequency_hz, output_only.damping_ratio, output_only.stiffness_N_m,
-                          output_only.directions):
+    for i, (f, z, k, u) in enumerate(zip(output_only.natural_frequency_hz, output_only.damping_ratio,
+                                         output_only.stiffness_N_m, output_only.directions)):
         d = np.abs(reference.natural_frequency_hz / f - 1.0)
         ok = (d < 0.10) & (np.abs(reference.directions @ u) > 0.7)
         if not np.any(ok):
             out.append({"natural_frequency_hz": float(f), "reference": None})
             continue
         j = int(np.flatnonzero(ok)[np.argmin(d[ok])])
-        out.append({
+        entry = {
             "natural_frequency_hz": float(f), "reference_natural_frequency_hz": float(reference.natural_frequency_hz[j]),
             "frequency_ratio": float(f / reference.natural_frequency_hz[j]),
             "damping_ratio_ratio": float(z / reference.damping_ratio[j]),
             "stiffness_ratio": float(k / reference.stiffness_N_m[j]) if np.isfinite(k) else None,
-        })
+        }
+        for key, diff, a, b in (("frequency_z", f - reference.natural_frequency_hz[j], se_f[i], ref_f[j]),
+                                ("damping_z", z - reference.damping_ratio[j], se_z[i], ref_z[j])):
+            scale = float(np.hypot(a, b))
+            entry[key] = float(diff / scale) if np.isfinite(scale) and scale > 0 else None
+        out.append(entry)
     return out
