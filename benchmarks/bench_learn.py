@@ -179,6 +179,7 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
         err = np.abs(lobes.quantiles[0.5] / boundary_truth - 1)
         out[f"boundary_median_err_{n}"] = float(np.median(err))
         out[f"boundary_within_10_{n}"] = float(np.mean(err < 0.10))
+        out[f"boundary_bias_{n}"] = float(np.median(np.log(lobes.quantiles[0.5] / boundary_truth)))  # > 0: above
         # is the posterior's own uncertainty honest? the truth inside its 5-95 % band, and the band's width
         out[f"boundary_band_{n}"] = float(np.mean((lobes.quantiles[0.95] <= boundary_truth) &
                                                   (boundary_truth <= lobes.quantiles[0.05])))
@@ -343,6 +344,9 @@ def summary(rows, sizes, base_sizes, n_held, log):
         if f"boundary_median_err_{n}" in rows[0]:
             log(f"{n} cuts: median relative error {med(f'boundary_median_err_{n}'):.3f}; median share of speeds within "
                 f"10 %: {med(f'boundary_within_10_{n}'):.2f}")
+        if f"boundary_bias_{n}" in rows[0]:
+            log(f"{n} cuts: median over seeds of the median log(boundary / truth) {med(f'boundary_bias_{n}'):+.3f} "
+                "(> 0: the posterior's boundary above the truth)")
         if f"boundary_band_{n}" in rows[0]:
             log(f"{n} cuts: the posterior's own log-limit sd (median over speeds and seeds) {med(f'boundary_sd_{n}'):.3f}; "
                 f"truth inside the 5-95 % band at {np.mean([r[f'boundary_band_{n}'] for r in rows]):.2f} of the speeds "
