@@ -131,7 +131,11 @@ def test_interrupted_run_leaves_no_table(cluster, robot, tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "planner.cli", "atlas", str(robot), str(SETUP), "-o", str(out), "--box-m", *BOX,
            "--step-m", "0.05", "--scheduler", cluster.address, "--chunk-points", "10"]
-    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    # a pytest-xdist worker may run with SIGINT ignored, and an ignored signal stays ignored across
+    # exec (Python then installs no KeyboardInterrupt handler): give the child the default, as a
+    # terminal would
+    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         buf = b""
         deadline = time.monotonic() + 60
@@ -139,8 +143,18 @@ def test_interrupted_run_leaves_no_table(cluster, robot, tmp_path):
             assert time.monotonic() < deadline and proc.poll() is None, buf.decode(errors="replace")
             buf += os.read(proc.stderr.fileno(), 256)
         time.sleep(1.0)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        # Ctrl-C as a user gives it: again if the run goes on (twice in the full suite the first
+        # one was lost while the run continued to the end; not reproduced alone)
+        err = b""
+        for _ in range(5):
+            proc.send_signal(signal.SIGINT)
+            try:
+                _, err = proc.communicate(timeout=2.0)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        else:
+            _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
