@@ -121,9 +121,8 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
     def labelled(cuts, limits, label_rng):
         if labels == "sdm":
             return label(cuts, limits, label_rng, flip=flip)
-        out, diverged = record_labels(prob, cuts, seed=1_000 * seed + 100 * n_labelled[0])
         n_labelled[0] += 1
-        return out
+        return record_labels(prob, cuts, seed=1_000 * seed + 100 * (n_labelled[0] - 1))[0]
 
     pool = labelled(pool, pool_lim, rng)
     held = random_cuts(prob, n_held, np.random.default_rng(seed + 10_000))

@@ -182,6 +182,19 @@ class Identification:
             "uncertainty": self.uncertainty(),
         }
 
+    def standard_errors(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """Standard errors of the modes' frequencies (Hz) and damping ratios, in model order, and
+        the number of blocks behind them (:class:`oma.timefit.TimeFit`); NaN where there are none
+        (see :meth:`uncertainty`)."""
+        tf = self.time_fit
+        ok = (tf is not None and tf.n_blocks >= MIN_BLOCKS  # the reported model is the time fit's
+              and np.array_equal(tf.model.natural_frequency_hz, self.model.natural_frequency_hz)
+              and np.array_equal(tf.model.damping_ratio, self.model.damping_ratio))
+        if not ok:
+            nan = np.full(self.model.n_modes, np.nan)
+            return nan, nan, int(tf.n_blocks) if tf is not None else 0
+        return np.asarray(tf.frequency_se_hz), np.asarray(tf.damping_se), int(tf.n_blocks)
+
     def uncertainty(self, level: float = 0.95) -> dict[str, Any]:
         """Standard errors and ``level`` intervals of the modes' frequency and damping.
 
@@ -191,26 +204,22 @@ class Identification:
         null) for the H1 method, the free-residue likelihood of rounded data, and records too
         short to tell their own scatter (fewer than :data:`oma.quantised.MIN_BLOCKS` blocks).
         """
-        from scipy import stats
+        from .output_only.uncertainty import t_interval
 
-        tf = self.time_fit
-        ok = (tf is not None and tf.n_blocks >= MIN_BLOCKS  # the reported model is the time fit's
-              and np.array_equal(tf.model.natural_frequency_hz, self.model.natural_frequency_hz)
-              and np.array_equal(tf.model.damping_ratio, self.model.damping_ratio))
-        se_f = tf.frequency_se_hz if ok else np.full(self.model.n_modes, np.nan)
-        se_z = tf.damping_se if ok else np.full(self.model.n_modes, np.nan)
-        t = stats.t.ppf(0.5 + 0.5 * level, max((tf.n_blocks if ok else 2) - 1, 1))
+        f, z = self.model.natural_frequency_hz, self.model.damping_ratio
+        se_f, se_z, blocks = self.standard_errors()
+        f_iv = t_interval(f, se_f, blocks, level)
+        z_iv = np.exp(t_interval(np.log(z), se_z / z, blocks, level))
         modes = []
-        for f, z, sf, sz in zip(self.model.natural_frequency_hz, self.model.damping_ratio, se_f, se_z):
-            good = bool(np.isfinite(sf) and np.isfinite(sz))
+        for i in range(self.model.n_modes):
+            good = bool(np.isfinite(se_f[i]) and np.isfinite(se_z[i]))
             modes.append({
-                "natural_frequency_hz": float(f), "frequency_standard_error_hz": _num(sf) if good else None,
-                "frequency_interval_hz": [_num(f - t * sf), _num(f + t * sf)] if good else [None, None],
-                "damping_ratio": float(z), "damping_standard_error": _num(sz) if good else None,
-                "damping_interval": [_num(z * np.exp(-t * sz / z)), _num(z * np.exp(t * sz / z))] if good
-                else [None, None]})
-        return {"available": bool(ok and all(m["frequency_standard_error_hz"] is not None for m in modes)),
-                "level": float(level), "blocks": int(tf.n_blocks) if tf is not None else 0, "modes": modes}
+                "natural_frequency_hz": float(f[i]), "frequency_standard_error_hz": _num(se_f[i]) if good else None,
+                "frequency_interval_hz": [_num(v) for v in f_iv[i]] if good else [None, None],
+                "damping_ratio": float(z[i]), "damping_standard_error": _num(se_z[i]) if good else None,
+                "damping_interval": [_num(v) for v in z_iv[i]] if good else [None, None]})
+        return {"available": bool(modes) and all(m["frequency_standard_error_hz"] is not None for m in modes),
+                "level": float(level), "blocks": blocks, "modes": modes}
 
     # plots delegate to oma.plots (matplotlib imported there, only when called)
     def plot_frf(self, reference=None, *, axes=None, **kwargs):

@@ -35,7 +35,8 @@ from scipy import special
 
 from ._linalg import lstsq_normal
 
-__all__ = ["MIN_DAMPING", "interval_terms", "free_residue_ml", "modal_form_ml"]
+__all__ = ["MIN_DAMPING", "MIN_BLOCKS", "interval_terms", "free_residue_ml", "modal_form_ml", "block_labels",
+           "sandwich_se"]
 
 logger = logging.getLogger(__name__)
 
@@ -368,8 +369,8 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
             js.append(np.hstack([d_th[k], d_phi]))
         return js, pred
 
-    def curvature(st):
-        js, pred = output_jacobians(st)
+    def curvature(st, jacobians=None):
+        js, pred = output_jacobians(st) if jacobians is None else jacobians
         hess = np.zeros((n_par, n_par))
         grad = np.zeros(n_par)
         for k in range(n_out):
@@ -448,35 +449,37 @@ def _block_sandwich(state, output_jacobians, curvature, recs, fs, y, q, n_shared
     floor). Fewer than :data:`MIN_BLOCKS` blocks: NaN (too short to tell its own scatter). The
     model-based standard error is a floor.
 
-    Returns the block standard errors, the number of blocks, and the model-based ones (the
-    inverse Hessian alone) for comparison, each of shape (2 n_m,).
+    Returns the standard errors (2 n_m,) and the number of blocks.
     """
     th, _, _, lsig, _, own_s = state
-    labels, starts = block_labels(recs, fs, np.exp(th[:n_m]), np.exp(th[n_m:]))
+    _, starts = block_labels(recs, fs, np.exp(th[:n_m]), np.exp(th[n_m:]))
     g_count = starts.size
-    js, pred = output_jacobians(state)
-    grad, hess = curvature(state)
-    keep = np.arange(n_shared + n_out * k_own)  # error scales held
-    h = hess[np.ix_(keep, keep)]
-    try:
-        h_inv = np.linalg.inv(h)
-    except np.linalg.LinAlgError:
-        nan = np.full(2 * n_m, np.nan)
-        return nan, g_count, nan
-    model_se = np.sqrt(np.maximum(np.diag(h_inv)[: 2 * n_m], 0.0))
     if g_count < MIN_BLOCKS:
-        return np.full(2 * n_m, np.nan), g_count, model_se
+        return np.full(2 * n_m, np.nan), g_count
+    js, pred = output_jacobians(state)
+    _, hess = curvature(state, (js, pred))
+    keep = np.arange(n_shared + n_out * k_own)  # error scales held
+    try:
+        h_inv = np.linalg.inv(hess[np.ix_(keep, keep)])
+    except np.linalg.LinAlgError:
+        return np.full(2 * n_m, np.nan), g_count
     scores = np.zeros((g_count, keep.size))
     for k in range(n_out):
         _, g, _, _ = interval_terms(y[k], pred[k], q, np.exp(lsig[k]))
         scores[:, :n_shared] += np.add.reduceat(js[k] * g[:, None], starts, axis=0)
         scores[:, n_shared + k * k_own: n_shared + (k + 1) * k_own] = np.add.reduceat(own_s * g[:, None], starts,
                                                                                     axis=0)
-    meat = scores.T @ scores * (g_count / (g_count - 1.0))
-    cov = h_inv @ meat @ h_inv
-    # the sandwich of a few blocks is itself noisy (14 degrees of freedom: +-19 % in the standard
-    # error); it is never allowed below the likelihood's own curvature
-    return np.maximum(np.sqrt(np.maximum(np.diag(cov)[: 2 * n_m], 0.0)), model_se), g_count, model_se
+    return sandwich_se(h_inv, scores, h_inv)[: 2 * n_m], g_count
+
+
+def sandwich_se(bread, scores, model_cov):
+    """Standard errors of the block sandwich ``bread (sum_b s_b s_b^T) bread G / (G - 1)`` from the
+    block scores (G, p), floored at the model-based ones (the diagonal of ``model_cov``): the
+    sandwich of a few blocks is itself noisy (14 degrees of freedom: +-19 % in the standard
+    error), so it is never allowed below the fit's own curvature."""
+    g_count = scores.shape[0]
+    cov = bread @ (scores.T @ scores) @ bread * (g_count / (g_count - 1.0))
+    return np.sqrt(np.maximum(np.maximum(np.diag(cov), np.diag(model_cov)), 0.0))
 
 
 

@@ -55,7 +55,7 @@ from ._linalg import blas_single_threaded, lstsq_normal
 from .modal_fit import _residue_modes
 from .harmonics import Harmonics, fit_harmonic_signal, harmonic_basis
 from .modal import ModalModel
-from .quantised import MIN_BLOCKS, MIN_DAMPING, block_labels, free_residue_ml, modal_form_ml
+from .quantised import MIN_BLOCKS, MIN_DAMPING, block_labels, free_residue_ml, modal_form_ml, sandwich_se
 from .signals import PreparedSignals
 from .synthetic import mode_filter
 
@@ -759,8 +759,7 @@ def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6):
     except np.linalg.LinAlgError:
         return nan, g_count
     model = s_inv @ np.einsum("o,oni,onj->ij", w2 ** 2 * sigma2, d, d) @ s_inv
-    cov = s_inv @ (scores.T @ scores) @ s_inv * (g_count / (g_count - 1.0))
-    return np.maximum(np.sqrt(np.maximum(np.diag(cov), 0.0)), np.sqrt(np.maximum(np.diag(model), 0.0))), g_count
+    return sandwich_se(s_inv, scores, model), g_count
 
 
 def _misfit(y_all, pred, nuis_part, recs, outputs, quantised):
@@ -809,7 +808,7 @@ def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source
     sigma = np.full(3, np.nan)
     sigma[outputs] = r1["sigma"]
     # standard errors of log fn, log zeta -> of fn, zeta (to first order)
-    log_se, n_blocks, _ = r1["uncertainty"]()
+    log_se, n_blocks = r1["uncertainty"]()
     se_f = fn[sel] * log_se[: fn.size][sel]
     se_z = zeta[sel] * log_se[fn.size:][sel]
     return TimeFit(model=model, residues=residues, residual_rms_m=rms, fit_error=ferr, noise_scale_m=sigma,

@@ -91,13 +91,9 @@ def _cmd_identify_output_only(args) -> int:
     payload = result.to_dict()
     if all(r.has("force") for r in records) and result.model.n_modes:
         force_based = identify(records, method=args.method)
-        fb_modes = force_based.uncertainty()["modes"]
         comparison = compare_models(
             result.model, force_based.model, standard_errors=(result.modes.freq_se_hz, result.modes.damping_se),
-            reference_standard_errors=([np.nan if m["frequency_standard_error_hz"] is None else m["frequency_standard_error_hz"]
-                                        for m in fb_modes],
-                                       [np.nan if m["damping_standard_error"] is None else m["damping_standard_error"]
-                                        for m in fb_modes]))
+            reference_standard_errors=force_based.standard_errors()[:2])
         ok = [c["stiffness_ratio"] for c, far in zip(comparison, result.stiffness.too_far if result.stiffness
                                                                   is not None else [True] * len(comparison))
               if c.get("stiffness_ratio") is not None and not far]

@@ -171,8 +171,6 @@ def _known_tails(w, tails, scale):
     estimated, in the group's channel scale): ``u_j / D_j(w)`` normalised as the modes' own,
     shape (K, l, q)."""
     f, z, u = tails
-    if f.size == 0:
-        return np.zeros((w.size, u.shape[0], 0), dtype=complex)
     uu = u / scale[:, None]
     uu = uu / np.linalg.norm(uu, axis=0)
     d = _response(np.asarray(f, float), np.asarray(z, float), np.asarray(z, float), w)
@@ -444,13 +442,14 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             # so its fit can only improve the likelihood); the first from SSI's directions and, for
             # close modes, also from their symmetric orthogonalisation (SSI mixes the directions of
             # close modes, and the likelihood has local optima there): the better of the two
-            parent = _TAIL_PARENT.get(r, "none")
-            prev = by_kind.get(parent, by_kind.get(False) if parent != "none" else None)
+            prev = by_kind.get(_TAIL_PARENT[r], by_kind.get(False)) if r in _TAIL_PARENT else None
             starts = [ug] if prev is not None or g.size < 2 else [ug, _orthogonalised(ug)]
-            others = np.setdiff1d(np.arange(f0.size), g)
-            tails = _known_tails(w, (f0[others], z0[others], u0[:, others]), scale) if r == "known" else None
-            if r == "known" and tails.shape[2] == 0:
-                continue  # no mode outside the group: the constant background is the same model
+            tails = None
+            if r == "known":
+                others = np.setdiff1d(np.arange(f0.size), g)
+                if others.size == 0:
+                    continue  # no mode outside the group: the constant background is the same model
+                tails = _known_tails(w, (f0[others], z0[others], u0[:, others]), scale)
             cands = [_fit_group(w, x, f0[g], z0[g], st, derivative, max_iter=max_iter, residuals=r, previous=prev,
                                 tails=tails)
                      for st in starts]
