@@ -12,6 +12,9 @@ import os
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+#: Where the shared data directory is expected (``$ROBOMILL_SHARED`` or ``<repo>/../shared``); it
+#: may be missing (:func:`shared_dir` says so).
+SHARED = Path(os.environ.get("ROBOMILL_SHARED") or REPO.parent / "shared")
 
 ROBOT_YAML = """\
 format: robomill-robot/1
@@ -60,8 +63,7 @@ def toolpath_yaml(robot: str, *, origin_m, rpy_deg, limits: str) -> str:
 def shared_dir() -> Path:
     """The shared data directory (``$ROBOMILL_SHARED`` or ``<repo>/../shared``); raises with a
     clear message when it is missing."""
-    env = os.environ.get("ROBOMILL_SHARED")
-    path = Path(env) if env else REPO.parent / "shared"
+    path = SHARED
     if not (path / "data").is_dir():
         raise FileNotFoundError(
             f"the shared data directory {path} (with data/, the real robots and recordings) is missing: clone "

@@ -15,9 +15,10 @@ from oma.errors import FRFError
 from oma.frf_io import read_frf, read_uff58_functions, write_frf_csv, write_frf_text, write_frf_uff
 from oma.frf_table import FRFTable
 from oma.modal import ModalModel
+from robot_helpers import SHARED
 
 #: The real impact-test file, kept outside the repository in ../shared/data (data/README.md).
-REAL_UFF = Path(__file__).resolve().parents[2] / "shared" / "data" / "frf-uff58" / "measurement.uff"
+REAL_UFF = SHARED / "data" / "frf-uff58" / "measurement.uff"
 
 #: Peaks of the real file's FRFs, Hz (data/README.md).
 REAL_PEAKS_HZ = (142.0, 279.0, 460.0, 687.0, 959.0)

@@ -10,6 +10,7 @@ from scipy.signal import find_peaks
 from oma.fit import fit_poles_residues, modal_phase_collinearity, prune_modes
 from oma.lscf import stabilisation_diagram
 from oma.modal import ModalModel
+from robot_helpers import SHARED
 
 EMA = pytest.importorskip("sdypy.EMA")
 
@@ -51,7 +52,7 @@ def test_robomill_within_1pc_frequency_and_10pc_damping_like_sdypy(seed):
 
 
 #: The real impact-test file, kept outside the repository in ../shared/data (data/README.md).
-REAL_UFF = Path(__file__).resolve().parents[2] / "shared" / "data" / "frf-uff58" / "measurement.uff"
+REAL_UFF = SHARED / "data" / "frf-uff58" / "measurement.uff"
 #: Peaks the data README lists, Hz; the file has one more resonance, near 51.5 Hz (see below).
 README_PEAKS_HZ = (142.0, 279.0, 460.0, 687.0, 959.0)
 

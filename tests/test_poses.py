@@ -27,9 +27,10 @@ from oma.errors import ModelError
 from oma.modal import ModalModel
 from oma.modal_io import read_modal_model
 from planner.poses import LOOResult, PoseModels, PoseOutOfSpanError, mac_matrix
+from robot_helpers import SHARED
 
 ROOT = Path(__file__).resolve().parents[1]
-TABLE = ROOT.parent / "shared" / "data" / "robot-pose-modal-table.csv"
+TABLE = SHARED / "data" / "robot-pose-modal-table.csv"
 EXAMPLE = ROOT / "examples" / "kr500_acetal"
 
 # ------------------------------------------------------------------------------------ tolerances
