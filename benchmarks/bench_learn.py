@@ -36,13 +36,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from planner.learn.likelihood import STABLE, Likelihood
+from planner.learn.likelihood import LEARNED_MISLABEL_SD, STABLE, Likelihood
 from planner.learn.outcomes_io import CutTable
 from planner.learn.posterior import PriorSD
-from planner.learn.predictive import predict_cuts, probability_lobes
+from planner.learn.predictive import ProbabilityLobes, predict_cuts, predictive_grid, probability_lobes
 from planner.learn.suggest import suggest_cuts
 from planner.learn.synthetic import label, random_cuts, record_labels, tool_problem, true_limits
-from planner.learn.tables import reference_limits
+from planner.learn.tables import build_table, reference_limits
 from planner.workers import default_workers
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -94,6 +94,33 @@ def acc(p, truth_stable):
 
 
 # ----------------------------------------------------------------------------------- one seed
+def shared_predictions(posts, setup, held: CutTable, rpm):
+    """P(stable) of the held-out cuts and the probability lobes over ``rpm`` at the setup's
+    engagement, for each posterior of ``posts``. One posterior: ``predict_cuts`` and
+    ``probability_lobes`` themselves; several: through tables built once over all of their
+    samples (the tables are the cost; each posterior is then a cheap interpolation)."""
+    if len(posts) == 1:
+        lobes = probability_lobes(posts[0], setup, (rpm[0], rpm[-1]), n_rpm=rpm.size)
+        return [predict_cuts(posts[0], setup, held)], [lobes]
+    union = replace(posts[0], samples=np.concatenate([p.samples for p in posts]), log_posterior=np.zeros(0),
+                    mislabel_samples=np.zeros(0))
+    grid = predictive_grid(union)
+    held_table = build_table(union.reference, setup.tool, setup.cut, union.coefficients, held.spindle_rpm,
+                             held.radial_depth_m, held.down, grid, method=union.method)
+    lobe_table = build_table(union.reference, setup.tool, setup.cut, union.coefficients, rpm,
+                             np.full(rpm.size, setup.cut.radial_depth_m), np.full(rpm.size, setup.cut.milling == "down"),
+                             grid, method=union.method)
+    p_all, lobes_all = [], []
+    for post in posts:
+        p_all.append(post.probability_stable(held_table, held.axial_depth_m))
+        thin = post.thinned(400)
+        lim = np.exp(thin.log_limits(lobe_table))
+        quant = {p: np.quantile(lim, 1.0 - p, axis=0) for p in (0.05, 0.5, 0.95)}
+        lobes_all.append(ProbabilityLobes(rpm=rpm, limits=lim, levels=(0.05, 0.5, 0.95), quantiles=quant,
+                                          radial_depth_m=setup.cut.radial_depth_m, milling=setup.cut.milling))
+    return p_all, lobes_all
+
+
 def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Likelihood(), prior_scale=1.0,
              design=None, start=10, batch=5, labels="sdm"):
     """One seed: the prior and the posterior after each size of ``sizes`` training cuts.
@@ -158,12 +185,29 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
             time.perf_counter() - t0
 
     def evaluate(n, res, t_learn):
+        # the posterior, and with an averaged rate of wrong marks also its two components (the
+        # rate fixed, the rate learned: an A/B from the same run, through shared tables)
+        tags = ("", "fixed_", "learned_") if res.components else ("",)
+        posts = (res.posterior,) + tuple(res.components)
         t0 = time.perf_counter()
-        p = predict_cuts(res.posterior, prob.setup, held)
+        p_all, lobes_all = shared_predictions(posts, prob.setup, held, rr)
         t_pred = time.perf_counter() - t0
-        out[f"acc_post_{n}"] = acc(p, truth)
-        if held_rec is not None:
-            out[f"acc_post_rec_{n}"] = acc(p, held_rec)
+        for tag, p, lobes in zip(tags, p_all, lobes_all):
+            out[f"acc_post_{tag}{n}"] = acc(p, truth)
+            if held_rec is not None:
+                out[f"acc_post_rec_{tag}{n}"] = acc(p, held_rec)
+            out[f"p_held_{tag}{n}"] = p
+            err = np.abs(lobes.quantiles[0.5] / boundary_truth - 1)
+            out[f"boundary_median_err_{tag}{n}"] = float(np.median(err))
+            out[f"boundary_within_10_{tag}{n}"] = float(np.mean(err < 0.10))
+            out[f"boundary_bias_{tag}{n}"] = float(np.median(np.log(lobes.quantiles[0.5] / boundary_truth)))
+            # is the posterior's own uncertainty honest? the truth inside its 5-95 % band, and the band's width
+            out[f"boundary_band_{tag}{n}"] = float(np.mean((lobes.quantiles[0.95] <= boundary_truth) &
+                                                           (boundary_truth <= lobes.quantiles[0.05])))
+            out[f"boundary_sd_{tag}{n}"] = float(np.median(np.std(np.log(lobes.limits), axis=0)))
+        if res.model_probability:
+            out[f"p_learned_{n}"] = res.model_probability[1]
+        out["truth_held"] = truth
         out[f"time_learn_{n}"] = t_learn
         out[f"time_predict_{n}"] = t_pred
         out[f"cause_{n}"] = res.posterior.cause()
@@ -173,22 +217,16 @@ def run_seed(seed, sizes, base_sizes, n_held, log, *, flip=0.05, likelihood=Like
         out[f"warnings_{n}"] = list(res.warnings)
         eps = res.posterior.mislabel_samples
         out[f"mislabel_{n}"] = float(np.median(eps)) if eps.size else likelihood.mislabel
-        out[f"p_held_{n}"], out["truth_held"] = p, truth
-        lobes = probability_lobes(res.posterior, prob.setup, RPM, n_rpm=48)
-        err = np.abs(lobes.quantiles[0.5] / boundary_truth - 1)
-        out[f"boundary_median_err_{n}"] = float(np.median(err))
-        out[f"boundary_within_10_{n}"] = float(np.mean(err < 0.10))
-        out[f"boundary_bias_{n}"] = float(np.median(np.log(lobes.quantiles[0.5] / boundary_truth)))  # > 0: above
-        # is the posterior's own uncertainty honest? the truth inside its 5-95 % band, and the band's width
-        out[f"boundary_band_{n}"] = float(np.mean((lobes.quantiles[0.95] <= boundary_truth) &
-                                                  (boundary_truth <= lobes.quantiles[0.05])))
-        out[f"boundary_sd_{n}"] = float(np.median(np.std(np.log(lobes.limits), axis=0)))
         if n == max(sizes):
             out["post"] = res
         log(f"  seed {seed} n={n}{' ' + design if design else ''}: prior {out['acc_prior']:.2f} "
             f"post {out[f'acc_post_{n}']:.2f} learn {t_learn:.1f}s predict({held.n_cuts}) {t_pred:.1f}s "
             f"cause {out[f'cause_{n}']} boundary err {out[f'boundary_median_err_{n}']:.3f} "
-            f"band {out[f'boundary_band_{n}']:.2f} eps {out[f'mislabel_{n}']:.3f}")
+            f"band {out[f'boundary_band_{n}']:.2f} eps {out[f'mislabel_{n}']:.3f}"
+            + (f" P(learned) {res.model_probability[1]:.2f} (fixed: err "
+               f"{out[f'boundary_median_err_fixed_{n}']:.3f} band {out[f'boundary_band_fixed_{n}']:.2f}; learned: "
+               f"err {out[f'boundary_median_err_learned_{n}']:.3f} band {out[f'boundary_band_learned_{n}']:.2f})"
+               if res.model_probability else ""))
 
     if design is None:
         for n in sizes:
@@ -364,6 +402,25 @@ def summary(rows, sizes, base_sizes, n_held, log):
             if sel.any():
                 log(f"| {lo:.2f}-{min(hi, 1):.2f} | {sel.sum()} | {p[sel].mean():.3f} | {t[sel].mean():.3f} |")
     for n in sizes:
+        if f"acc_post_fixed_{n}" not in rows[0]:
+            continue
+        p_l = [r[f"p_learned_{n}"] for r in rows]
+        log(f"\n## the rate of wrong marks, {n} cuts: averaged by the evidence against fixed and learned (same runs)")
+        log(f"P(learned) over seeds: median {np.median(p_l):.2f}, quartiles {np.quantile(p_l, 0.25):.2f}-"
+            f"{np.quantile(p_l, 0.75):.2f}, above 0.5 in {sum(x > 0.5 for x in p_l)} of {len(p_l)}")
+        log("| rate of wrong marks | accuracy median (markedly-lower seeds) | boundary median error | speeds within 10 % | "
+            "truth inside 5-95 % band | log-limit sd | P 0.6-0.8: share stable | P 0.8-0.95: share stable |")
+        log("|---|---|---|---|---|---|---|---|")
+        t = np.concatenate([r["truth_held"] for r in rows])
+        for tag, name in (("", "averaged"), ("fixed_", "fixed 5 %"), ("learned_", "learned")):
+            p = np.concatenate([r[f"p_held_{tag}{n}"] for r in rows])
+            rel = [t[(p >= lo) & (p < hi)].mean() if np.any((p >= lo) & (p < hi)) else float("nan")
+                   for lo, hi in ((0.6, 0.8), (0.8, 0.95))]
+            low_acc = np.median([r[f"acc_post_{tag}{n}"] for r in low]) if low else float("nan")
+            log(f"| {name} | {med(f'acc_post_{tag}{n}'):.3f} ({low_acc:.3f}) | {med(f'boundary_median_err_{tag}{n}'):.3f} | "
+                f"{med(f'boundary_within_10_{tag}{n}'):.2f} | {np.mean([r[f'boundary_band_{tag}{n}'] for r in rows]):.2f} | "
+                f"{med(f'boundary_sd_{tag}{n}'):.3f} | {rel[0]:.2f} | {rel[1]:.2f} |")
+    for n in sizes:
         log(f"learn {n} cuts: median {med(f'time_learn_{n}'):.1f} s (max {max(r[f'time_learn_{n}'] for r in rows):.1f}); "
             f"predict {n_held} held-out cuts median {med(f'time_predict_{n}'):.1f} s")
         if f"table_error_{n}" in rows[0]:
@@ -386,8 +443,11 @@ def main(argv=None):
     ap.add_argument("--flip", type=float, default=0.05, help="share of the training marks flipped")
     ap.add_argument("--prior-scale", type=float, default=1.0,
                     help="the learner's prior sds this many times the ones the truth is drawn from (wide priors)")
-    ap.add_argument("--mislabel-sd", type=float, default=Likelihood().mislabel_sd,
-                    help="prior log-odds sd of the learned mislabel rate (0: fixed at 5 %%)")
+    ap.add_argument("--mislabel-model", choices=["fixed", "learned", "average"], default="fixed",
+                    help="the rate of wrong marks fixed at 5 %%, learned, or both averaged by their evidence (then "
+                         "the fixed and the learned posteriors are reported too, from the same run)")
+    ap.add_argument("--mislabel-sd", type=float, default=LEARNED_MISLABEL_SD,
+                    help="prior log-odds sd of a learned rate (--mislabel-model learned or average)")
     ap.add_argument("--design", choices=["boundary", "mrr"], default=None,
                     help="training cuts: --start random ones, then rounds of --batch suggested by this criterion")
     ap.add_argument("--start", type=int, default=10, help="random cuts before the first suggestion (--design)")
@@ -421,7 +481,9 @@ def main(argv=None):
             log(f"budget reached: {len(rows)} seeds done")
             break
         r, last_prob = run_seed(seed, args.sizes, base_sizes, args.held, log, flip=args.flip,
-                                likelihood=Likelihood(mislabel_sd=args.mislabel_sd), prior_scale=args.prior_scale,
+                                likelihood=Likelihood(mislabel_sd=0.0 if args.mislabel_model == "fixed" else args.mislabel_sd,
+                                                      mislabel_average=args.mislabel_model == "average"),
+                                prior_scale=args.prior_scale,
                                 design=args.design, start=args.start, batch=args.batch, labels=args.labels)
         rows.append(r)
         if args.save:

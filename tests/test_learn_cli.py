@@ -10,6 +10,7 @@ import pytest
 from oma.modal_io import read_modal_model, write_modal_model
 from planner.cli import main
 from planner.learn.outcomes_io import CutTable, CutsError, detect_outcome, read_cuts, record_outcome
+from planner.learn.likelihood import Likelihood
 from planner.learn.posterior_io import read_posterior
 from planner.learn.synthetic import label, random_cuts, record_labels, tool_problem, true_limits
 from stability.setup_io import write_setup
@@ -137,6 +138,29 @@ def test_mislabel_options(files, capsys, tmp_path, option, value):
     code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
                                  str(d / "cuts.csv"), option, value, "-o", str(tmp_path / "p.yaml")])
     assert code == 2 and option in err and err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
+
+
+def test_mislabel_model_needs_a_rate_to_learn(files, capsys, tmp_path):
+    d, _ = files
+    code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
+                                 str(d / "cuts.csv"), "--mislabel", "0", "--mislabel-model", "average",
+                                 "-o", str(tmp_path / "p.yaml")])
+    assert code == 2 and "--mislabel-model" in err and err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
+
+
+def test_averaged_mislabel_rate_is_reported_and_read_back(files, capsys, tmp_path):
+    """``--mislabel-model average``: the posterior probability of the learned rate in the JSON, the
+    averaged rate's prior (half of it at 5 %) and the setting kept in the posterior file."""
+    d, _ = files
+    code, out, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
+                                   str(d / "cuts.csv"), "--method", "zoa", "--samples", "400", "--mislabel-model",
+                                   "average", "-o", str(tmp_path / "p.yaml"), "--json"])
+    assert code == 0, err
+    rate = json.loads(out)["parameters"]["mislabel_rate"]
+    assert not rate["fixed"] and 0.0 <= rate["learned_probability"] <= 1.0
+    assert 0.05 < rate["prior"] < Likelihood(mislabel_sd=1.2).mislabel_prior()[0]
+    post = read_posterior(tmp_path / "p.yaml")
+    assert post.likelihood.averages_mislabel and post.likelihood.mislabel_sd == 1.2
 
 
 def test_read_cuts_detects_outcome_from_record(tmp_path):

@@ -305,6 +305,46 @@ def test_smc_with_a_learned_mislabel_rate_matches_a_grid_posterior(problem):
         np.testing.assert_array_less(np.abs(q_s - q_g), 0.15 * s_g)
 
 
+@pytest.mark.parametrize("flip", [0.05, 0.2])
+def test_averaged_mislabel_rate_matches_the_grid_evidence_and_posterior(problem, flip):
+    """``mislabel_average``: the fixed 5 % rate and the learned one mixed by their evidence. On a
+    grid (frequency x the rate's log-odds; 40 cuts, frequency free) the evidence of each model is
+    an integral, and so the probability of the learned rate: the SMC's within 0.05 of it (5 %
+    flipped: about 0.4, the two models about even; 20 %: about 0.98), and the mixture's marginals
+    of frequency and rate within the tolerances of the grid tests above."""
+    cuts, table, _ = _zoa_problem(problem, 40, 31, flip, free=("frequency",))
+    lk = Likelihood(mislabel_sd=1.2, mislabel_average=True)
+    res = learn(problem.setup, problem.prior, cuts, free=("frequency",), table=table, n_particles=4000, seed=3,
+                validate=0, likelihood=lk)
+    sd_f = PriorSD().log_sds()[0]
+    gf, gx = np.linspace(-4.5 * sd_f, 4.5 * sd_f, 301), np.linspace(-4.5 * lk.mislabel_sd, 4.5 * lk.mislabel_sd, 121)
+    z = np.zeros(gf.size)
+    log_r = np.log(cuts.axial_depth_m)[None, :] - table.log_limit(gf, z, z, z, z)
+    prior_f = np.exp(-0.5 * (gf / sd_f) ** 2) / (np.sqrt(2 * np.pi) * sd_f) * (gf[1] - gf[0])
+    prior_x = np.exp(-0.5 * (gx / lk.mislabel_sd) ** 2) / (np.sqrt(2 * np.pi) * lk.mislabel_sd) * (gx[1] - gx[0])
+    like_fixed = np.exp(lk.log_terms(log_r, cuts.outcome, cuts.weight, mislabel=lk.mislabel).sum(axis=1))
+    eps = lk.mislabel_rate(gx)
+    like_learned = np.exp(np.stack([lk.log_terms(log_r, cuts.outcome, cuts.weight, mislabel=e).sum(axis=1)
+                                    for e in eps], axis=1))  # (f, x)
+    z_fixed = np.sum(like_fixed * prior_f)
+    joint = like_learned * prior_f[:, None] * prior_x[None, :]
+    z_learned = joint.sum()
+    p_learned = z_learned / (z_fixed + z_learned)
+    assert abs(res.model_probability[1] - p_learned) < 0.05, (res.model_probability, p_learned)
+    # the mixture: (frequency, rate) points of both models with their posterior weights
+    w_f = (1 - p_learned) * like_fixed * prior_f / z_fixed
+    w_l = p_learned * joint / z_learned
+    grid_f = np.r_[gf, np.repeat(gf, gx.size)]
+    grid_e = np.r_[np.full(gf.size, lk.mislabel), np.tile(eps, gf.size)]
+    w = np.r_[w_f, w_l.ravel()]
+    for g, smp in ((grid_f, res.posterior.samples[:, 0]), (grid_e, res.posterior.mislabel_samples)):
+        m_g, s_g, q_g = _stats(g, w)
+        m_s, s_s, q_s = _stats(smp)
+        assert abs(m_s - m_g) < 0.1 * s_g, (m_s, m_g, s_g)
+        assert abs(s_s / s_g - 1) < 0.10, (s_s, s_g)
+        np.testing.assert_array_less(np.abs(q_s - q_g), 0.15 * s_g)
+
+
 @pytest.mark.parametrize("flip", [0.0, 0.3])
 def test_learn_finds_the_share_of_wrong_marks_and_which_they_are(problem, flip):
     """40 cuts from an exactly specified model: with clean marks the learned rate stays low (median

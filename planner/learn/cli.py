@@ -51,8 +51,12 @@ def add_parsers(sub) -> None:
                    help="stability method per cut (auto: SDM below ae/D = 0.2, ZOA above)")
     p.add_argument("--mislabel", type=float, default=0.05, metavar="RATE",
                    help="share of wrong marks (default 0.05; with --mislabel-sd > 0 the prior median of a learned share)")
-    p.add_argument("--mislabel-sd", type=float, default=0.0, metavar="SD",
-                   help="learn the share: prior sd of its log-odds (1.2: 90 %% between 0.7 and 22 %%); default 0, fixed")
+    p.add_argument("--mislabel-sd", type=float, default=None, metavar="SD",
+                   help="prior sd of the learned share's log-odds (default 1.2: 90 %% between 0.7 and 22 %%); "
+                        "given alone, > 0 learns the share (as --mislabel-model learned)")
+    p.add_argument("--mislabel-model", choices=["fixed", "learned", "average"], default=None,
+                   help="the share of wrong marks fixed at --mislabel, learned, or both averaged by their evidence "
+                        "(default: fixed, or learned when --mislabel-sd > 0 is given)")
     p.add_argument("--samples", type=int, default=2000, help="posterior particles")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rpm", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
@@ -74,12 +78,24 @@ def _speed_range(args, setup, cuts):
     return 0.8 * lo, 1.2 * hi
 
 
+def _likelihood(args):
+    """The outcome likelihood of ``--mislabel``, ``--mislabel-sd``, ``--mislabel-model``."""
+    from .likelihood import LEARNED_MISLABEL_SD, Likelihood
+
+    mode = args.mislabel_model or ("learned" if (args.mislabel_sd or 0) > 0 else "fixed")
+    sd = LEARNED_MISLABEL_SD if args.mislabel_sd is None else args.mislabel_sd
+    if mode != "fixed" and not (sd > 0 and args.mislabel > 0):
+        raise UsageError("--mislabel-model", f"--mislabel > 0 and --mislabel-sd > 0 to learn the share ({mode})",
+                         f"--mislabel {args.mislabel:g} --mislabel-sd {sd:g}")
+    return Likelihood(mislabel=args.mislabel, mislabel_sd=0.0 if mode == "fixed" else sd,
+                      mislabel_average=mode == "average")
+
+
 def _cmd_learn(args) -> int:
     from oma.errors import InputError
     from oma.modal_io import read_modal_model
     from stability.setup_io import read_setup
 
-    from .likelihood import Likelihood
     from .outcomes_io import read_cuts
     from .posterior_io import write_posterior_model
     from .predictive import predict_cuts, probability_lobes
@@ -94,8 +110,9 @@ def _cmd_learn(args) -> int:
     prior_sd = parse_prior_sd(args.prior_sd)
     if not 0 <= args.mislabel < 0.5:
         raise UsageError("--mislabel", "a share in [0, 0.5)", str(args.mislabel))
-    if not args.mislabel_sd >= 0:
+    if args.mislabel_sd is not None and not args.mislabel_sd >= 0:
         raise UsageError("--mislabel-sd", "a log-odds sd >= 0", str(args.mislabel_sd))
+    likelihood = _likelihood(args)
     if args.samples < 100:
         raise UsageError("--samples", "at least 100", str(args.samples))
     if args.suggest is not None and not 1 <= args.suggest <= 100:
@@ -110,7 +127,7 @@ def _cmd_learn(args) -> int:
     rpm_range = _speed_range(args, setup, cuts)
 
     result = learn(setup, prior, cuts, prior_sd=prior_sd, n_particles=args.samples, seed=args.seed,
-                   method=args.method, likelihood=Likelihood(mislabel=args.mislabel, mislabel_sd=args.mislabel_sd))
+                   method=args.method, likelihood=likelihood)
     post = result.posterior
     payload = result.to_dict()
     payload["predictions"] = None

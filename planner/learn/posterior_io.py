@@ -108,7 +108,8 @@ def read_posterior(path) -> Posterior | None:
     samples = _array(node, "samples", path, shape_tail=len(PARAMETERS))
     sd = _array(node, "prior_log_sd", path)
     lk = node.get("likelihood") or {}
-    likelihood = Likelihood(**{k_: float(v) for k_, v in lk.items() if k_ in Likelihood.__dataclass_fields__})
+    likelihood = Likelihood(**{k_: (bool(v) if k_ == "mislabel_average" else float(v)) for k_, v in lk.items()
+                               if k_ in Likelihood.__dataclass_fields__})
     if samples.shape[0] == 0 or sd.shape != (len(PARAMETERS),):
         raise ModelError(path, "x_posterior.samples", "at least one sample of 5 log-multipliers", f"{samples.shape}")
     method = node.get("method", "sdm")

@@ -43,6 +43,10 @@ class LearnResult:
     log_evidence: float = float("nan")
     model_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
     mislabel_probability: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: With an averaged rate of wrong marks: the posterior under the fixed rate and under the
+    #: learned one, and their probabilities (evidence, equal prior odds); else empty.
+    components: tuple[Posterior, ...] = ()
+    model_probability: tuple[float, ...] = ()
 
     def suspect_labels(self, threshold: float = SUSPECT_LABEL) -> list[dict]:
         """Marks that are more likely wrong than right under the posterior (rows from 0)."""
@@ -54,7 +58,10 @@ class LearnResult:
         model, coef = self.posterior.map_model()
         from oma.modal_io import modal_model_to_dict
 
-        return {"parameters": self.posterior.parameters(), "map_model": modal_model_to_dict(model),
+        parameters = self.posterior.parameters()
+        if self.model_probability and "mislabel_rate" in parameters:
+            parameters["mislabel_rate"]["learned_probability"] = self.model_probability[1]
+        return {"parameters": parameters, "map_model": modal_model_to_dict(model),
                 "map_coefficients": {"Ktc_N_m2": coef.Ktc_N_m2, "Krc_N_m2": coef.Krc_N_m2},
                 "accuracy_before": self.accuracy_before, "accuracy_after": self.accuracy_after,
                 "cause": self.posterior.cause(), "warnings": list(self.warnings),
@@ -192,23 +199,26 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     active = np.flatnonzero(sd > 0)
     log_a = np.log(cuts.axial_depth_m)
     labelled = cuts.outcome >= 0
-    # the sampler's coordinates: the free log-multipliers, then the mislabel rate's log-odds shift
-    x_sd = np.r_[sd[active], likelihood.mislabel_sd] if likelihood.learns_mislabel else sd[active]
+    # the models of the mislabel rate sampled (one, or fixed and learned to be averaged); the
+    # sampler's coordinates: the free log-multipliers, then a learned rate's log-odds shift
+    models = likelihood.components()
+
+    def x_sd(lk):
+        return np.r_[sd[active], lk.mislabel_sd] if lk.learns_mislabel else sd[active]
 
     def full(x):
         u = np.zeros((x.shape[0], 5))
         u[:, active] = x[:, :active.size]
         return u
 
-    def rate(x):
-        return likelihood.mislabel_rate(x[:, -1]) if likelihood.learns_mislabel else np.full(x.shape[0],
-                                                                                           likelihood.mislabel)
+    def rate(x, lk):
+        return lk.mislabel_rate(x[:, -1]) if lk.learns_mislabel else np.full(x.shape[0], lk.mislabel)
 
-    def terms(x, table, model_error=None):
+    def terms(x, table, lk, model_error=None):
         u = full(x)
         lb = table.log_limit(u[:, 0], u[:, 1], u[:, 2], u[:, 3], u[:, 4])
-        return likelihood.log_terms(log_a[None, :] - lb, cuts.outcome, np.where(labelled, cuts.weight, 0.0),
-                                    model_error=model_error, mislabel=rate(x)[:, None]), lb
+        return lk.log_terms(log_a[None, :] - lb, cuts.outcome, np.where(labelled, cuts.weight, 0.0),
+                            model_error=model_error, mislabel=rate(x, lk)[:, None]), lb
 
     def inside(table):
         """The table's range, where the posterior is kept: outside it the table clips to its edge,
@@ -217,20 +227,30 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         outside the fine table in frequency and damping, its check then off by a median 50 %)."""
         return lambda x: table.contains(full(x)[:, 0], full(x)[:, 2], full(x)[:, 3], full(x)[:, 4])
 
-    def log_likelihood(table, model_error=None):
+    def log_likelihood(table, lk, model_error=None):
         keep = inside(table)
-        return lambda x: np.where(keep(x), terms(x, table, model_error)[0].sum(axis=1), -np.inf)
+        return lambda x: np.where(keep(x), terms(x, table, lk, model_error)[0].sum(axis=1), -np.inf)
 
     rng = np.random.default_rng(seed)
+
+    def sample(table, model_error=None):
+        """One SMC run per model of the rate (the same table and support)."""
+        return [smc(log_likelihood(table, lk, model_error), x_sd(lk), rng=rng, n_particles=n_particles,
+                    support=inside(table)) for lk in models]
+
+    def pooled(runs):
+        return np.concatenate([full(r.samples) for r in runs])
+
     stages = []
     coarse = None
     if table is None:
         # coarse to fine: a coarse table over the prior's 3 sds (SDM at half the steps: ~2.5 %
-        # from converged) locates the posterior; the fine table covers only where it lies, with a
-        # margin of 2 sds beyond its extreme samples (notes/learn.md: why, and what it costs)
+        # from converged) locates the posterior (under the widest model of the rate, the last);
+        # the fine table covers only where it lies, with a margin of 2 sds beyond its extreme
+        # samples (notes/learn.md: why, and what it costs)
         coarse = table_for(prior, setup, cuts, grid_for(sd, coarse=True), method=method)
-        res0 = smc(log_likelihood(coarse), x_sd, rng=rng, n_particles=max(500, n_particles // 2),
-                   support=inside(coarse))
+        res0 = smc(log_likelihood(coarse, models[-1]), x_sd(models[-1]), rng=rng,
+                   n_particles=max(500, n_particles // 2), support=inside(coarse))
         u0 = full(res0.samples)
         stages.append(time.perf_counter() - t0)
         table = table_for(prior, setup, cuts, Grid.covering(u0[:, 0], u0[:, 2], u0[:, 4] - u0[:, 3],
@@ -238,38 +258,52 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                                                             max_ratio=FINE_NODES[1]),
                           method=method)
     t1 = time.perf_counter()
-    res = smc(log_likelihood(table), x_sd, rng=rng, n_particles=n_particles, support=inside(table))
-    if coarse is not None and _at_edge(full(res.samples), table, grid_for(sd), sd):
+    runs = sample(table)
+    if coarse is not None and _at_edge(pooled(runs), table, grid_for(sd), sd):
         # the fine posterior presses against its table's box where the prior's range goes on (the
         # coarse stage placed the box too tightly): once, a table over both stages' samples
-        u1 = np.concatenate([u0, full(res.samples)])
+        u1 = np.concatenate([u0, pooled(runs)])
         table = table_for(prior, setup, cuts, Grid.covering(u1[:, 0], u1[:, 2], u1[:, 4] - u1[:, 3],
                                                             bounds=grid_for(sd), max_zeta=FINE_NODES[0],
                                                             max_ratio=FINE_NODES[1]),
                           method=method)
         stages.append(time.perf_counter() - t1)
-        res = smc(log_likelihood(table), x_sd, rng=rng, n_particles=n_particles, support=inside(table))
+        runs = sample(table)
     t2 = time.perf_counter()
     model_error = np.zeros(cuts.n_cuts)
     if validate > 0 and active.size:
         # the table against direct limits where the posterior lies; its error widens each cut's
         # boundary, and the posterior is sampled again
-        pick = rng.choice(res.samples.shape[0], min(int(validate), res.samples.shape[0]), replace=False)
-        u_v = full(res.samples[pick])
+        u_all = pooled(runs)
+        u_v = u_all[rng.choice(u_all.shape[0], min(int(validate), u_all.shape[0]), replace=False)]
         direct = direct_log_limits(prior, setup.tool, setup.cut, coef, cuts.spindle_rpm, cuts.radial_depth_m,
                                    cuts.down, u_v, method=method, sdm_steps=table.grid.sdm_steps)
         model_error = np.sqrt(np.mean((table.log_limit(*u_v.T) - direct) ** 2, axis=0))
-        res = smc(log_likelihood(table, model_error), x_sd, rng=rng, n_particles=n_particles,
-                  support=inside(table))
+        runs = sample(table, model_error)
     t3 = time.perf_counter()
     likelihood = replace(likelihood, model_error=float(np.sqrt(np.mean(model_error**2))))
-    u, eps = full(res.samples), rate(res.samples)
-    tt, lb = terms(res.samples, table, model_error)
+    # each model's posterior, then their mixture in proportion to the evidence (equal prior odds)
+    log_z = np.array([r.log_evidence for r in runs])
+    model_weight = np.exp(log_z - log_z.max())
+    model_weight /= model_weight.sum()
+    parts = []
+    for lk, r in zip(models, runs):
+        tt_k, lb_k = terms(r.samples, table, lk, model_error)
+        # the MAP is over the physical parameters: the rate's own prior term is left out
+        log_prior = -0.5 * np.sum((r.samples[:, :active.size] / sd[active]) ** 2, axis=1)
+        parts.append((full(r.samples), rate(r.samples, lk), tt_k, lb_k, tt_k.sum(axis=1) + log_prior))
+    components = tuple(Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u_k,
+                                 log_posterior=lp_k, likelihood=replace(lk, model_error=likelihood.model_error),
+                                 method=method, mislabel_samples=eps_k)
+                       for lk, (u_k, eps_k, _, _, lp_k) in zip(models, parts))
+    counts = np.floor(model_weight * n_particles).astype(int)
+    counts[np.argmax(model_weight)] += n_particles - counts.sum()
+    pick = [np.arange(counts[0])] if len(parts) == 1 else \
+        [rng.choice(p[0].shape[0], c, replace=False) for p, c in zip(parts, counts)]
+    u, eps, tt, lb, lp = (np.concatenate([p[i][k] for p, k in zip(parts, pick)]) for i in range(5))
     p_each = 1.0 - likelihood.p_chatter(log_a[None, :] - lb, model_error=model_error)
-    log_prior = -0.5 * np.sum((res.samples / x_sd) ** 2, axis=1)
-    post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u,
-                     log_posterior=tt.sum(axis=1) + log_prior, likelihood=likelihood, method=method,
-                     mislabel_samples=eps)
+    post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u, log_posterior=lp,
+                     likelihood=likelihood, method=method, mislabel_samples=eps)
     p_wrong = mislabel_probability(p_each, eps, cuts)
     # the prior's own prediction: fresh prior samples (no data used, so no cross-validation needed),
     # through the table that spans the prior (the coarse one; the fine one covers the posterior only)
@@ -286,7 +320,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                         "told apart (a posterior per mode is not implemented)")
     for name in post.unpinned():
         warnings.append(f"the cuts do not pin down {name}: its posterior sd is still above 80 % of the prior's")
-    acc_min = min(res.acceptance) if res.acceptance else 1.0
+    acc_min = min((min(r.acceptance) for r in runs if r.acceptance), default=1.0)
     if acc_min < 0.02:
         warnings.append(f"the sampler's acceptance fell to {acc_min:.3f}: the posterior may be under-explored")
     if {"stiffness", "Ktc"} <= set(post.unpinned()) and sd[1] > 0 and sd[3] > 0:
@@ -330,5 +364,8 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                "validation": t3 - t2, "total": time.perf_counter() - t0}
     return LearnResult(posterior=post, table=table, accuracy_before=acc_b, accuracy_after=acc_a,
                        prior_probability_stable=p_prior, loo_probability_stable=p_loo,
-                       warnings=tuple(warnings), timings_s=timings, log_evidence=res.log_evidence,
-                       model_error=model_error, mislabel_probability=p_wrong)
+                       warnings=tuple(warnings), timings_s=timings,
+                       log_evidence=float(log_z.max() + np.log(np.mean(np.exp(log_z - log_z.max())))),
+                       model_error=model_error, mislabel_probability=p_wrong,
+                       components=components if len(components) > 1 else (),
+                       model_probability=tuple(float(w) for w in model_weight) if len(components) > 1 else ())
