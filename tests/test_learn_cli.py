@@ -65,8 +65,10 @@ def test_learn_writes_a_posterior_that_reads_back(files, capsys, suggest_for):
     assert len(res["suggested"]) == 2 and all(s["outcome"] == "" for s in res["suggested"])
     score = {"mrr": "expected_improvement_mrr_m3_s", "boundary": "expected_variance_reduction"}[suggest_for]
     assert all(s[score] >= 0 for s in res["suggested"])
-    # the share of wrong marks is reported with the rest (fixed by default), and the suspect marks listed
-    assert res["parameters"]["mislabel_rate"]["fixed"] and isinstance(res["suspect_labels"], list)
+    # the share of wrong marks is reported with the rest (fixed and learned averaged by default, with
+    # the learned one's probability), and the suspect marks listed
+    rate = res["parameters"]["mislabel_rate"]
+    assert not rate["fixed"] and 0 <= rate["learned_probability"] <= 1 and isinstance(res["suspect_labels"], list)
     # the posterior file is an ordinary modal model for every reader (x_posterior ignored) ...
     model = read_modal_model(d / "post.yaml")
     assert model.n_modes == 1
