@@ -150,6 +150,20 @@ def test_mislabel_model_needs_a_rate_to_learn(files, capsys, tmp_path):
     assert code == 2 and "--mislabel-model" in err and err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
+@pytest.mark.parametrize("argv,mode", [([], "average"), (["--mislabel-sd", "0"], "fixed"),
+                                       (["--mislabel-sd", "1.5"], "learned"), (["--mislabel", "0"], "fixed"),
+                                       (["--mislabel-model", "fixed"], "fixed")])
+def test_mislabel_options_choose_the_model_of_the_share(argv, mode):
+    """The default averages; --mislabel-sd alone keeps its old meaning (> 0 learned, 0 fixed)."""
+    from planner.cli import build_parser
+    from planner.learn.cli import _likelihood
+
+    args = build_parser().parse_args(["learn", "s.yaml", "--model", "m.yaml", "--cuts", "c.csv", *argv])
+    lk = _likelihood(args)
+    got = "average" if lk.averages_mislabel else "learned" if lk.learns_mislabel else "fixed"
+    assert got == mode
+
+
 def test_averaged_mislabel_rate_is_reported_and_read_back(files, capsys, tmp_path):
     """``--mislabel-model average``: the posterior probability of the learned rate in the JSON, the
     averaged rate's prior (half of it at 5 %) and the setting kept in the posterior file."""
