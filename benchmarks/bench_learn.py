@@ -39,7 +39,7 @@ import numpy as np
 from planner.learn.likelihood import LEARNED_MISLABEL_SD, STABLE, Likelihood
 from planner.learn.outcomes_io import CutTable
 from planner.learn.posterior import PriorSD
-from planner.learn.predictive import ProbabilityLobes, predict_cuts, predictive_grid, probability_lobes
+from planner.learn.predictive import lobes_from_table, predict_cuts, predictive_grid, probability_lobes
 from planner.learn.suggest import suggest_cuts
 from planner.learn.synthetic import label, random_cuts, record_labels, tool_problem, true_limits
 from planner.learn.tables import build_table, reference_limits
@@ -113,11 +113,8 @@ def shared_predictions(posts, setup, held: CutTable, rpm):
     p_all, lobes_all = [], []
     for post in posts:
         p_all.append(post.probability_stable(held_table, held.axial_depth_m))
-        thin = post.thinned(400)
-        lim = np.exp(thin.log_limits(lobe_table))
-        quant = {p: np.quantile(lim, 1.0 - p, axis=0) for p in (0.05, 0.5, 0.95)}
-        lobes_all.append(ProbabilityLobes(rpm=rpm, limits=lim, levels=(0.05, 0.5, 0.95), quantiles=quant,
-                                          radial_depth_m=setup.cut.radial_depth_m, milling=setup.cut.milling))
+        lobes_all.append(lobes_from_table(post.thinned(400), lobe_table, rpm, radial_depth_m=setup.cut.radial_depth_m,
+                                          milling=setup.cut.milling))
     return p_all, lobes_all
 
 

@@ -13,7 +13,8 @@ from .outcomes_io import CutTable
 from .posterior import Posterior
 from .tables import FINE_NODES, Grid, LimitTable, build_table
 
-__all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "ChanceLimit"]
+__all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "lobes_from_table",
+           "ChanceLimit"]
 
 
 def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
@@ -81,10 +82,19 @@ def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 15
     post = posterior.thinned(max_samples)
     table = _table(post, setup, rpm, np.full(rpm.size, ae), np.full(rpm.size, mill == "down"), method=method,
                    grid=grid)
-    lim = np.exp(post.log_limits(table))
+    return lobes_from_table(post, table, rpm, levels=levels, radial_depth_m=ae, milling=mill)
+
+
+def lobes_from_table(posterior: Posterior, table: LimitTable, rpm, *, radial_depth_m: float, milling: str,
+                     levels=(0.05, 0.5, 0.95)) -> ProbabilityLobes:
+    """The lobes of every sample of ``posterior`` through ``table``, a limit table over the speeds
+    ``rpm`` at the engagement ``radial_depth_m``, ``milling`` (e.g. one table built over the
+    samples of several posteriors, each then interpolated)."""
+    lim = np.exp(posterior.log_limits(table))
     quant = {float(p): readonly(np.quantile(lim, 1.0 - p, axis=0)) for p in levels}
-    return ProbabilityLobes(rpm=readonly(rpm), limits=readonly(lim), levels=tuple(float(p) for p in levels),
-                            quantiles=quant, radial_depth_m=ae, milling=mill)
+    return ProbabilityLobes(rpm=readonly(np.asarray(rpm, dtype=float)), limits=readonly(lim),
+                            levels=tuple(float(p) for p in levels), quantiles=quant,
+                            radial_depth_m=float(radial_depth_m), milling=milling)
 
 
 class ChanceLimit:

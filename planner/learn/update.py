@@ -6,6 +6,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.special import logsumexp, softmax
 
 from oma.cutting import CuttingCoefficients
 from oma.modal import ModalModel
@@ -284,8 +285,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     likelihood = replace(likelihood, model_error=float(np.sqrt(np.mean(model_error**2))))
     # each model's posterior, then their mixture in proportion to the evidence (equal prior odds)
     log_z = np.array([r.log_evidence for r in runs])
-    model_weight = np.exp(log_z - log_z.max())
-    model_weight /= model_weight.sum()
+    model_weight = softmax(log_z)
     parts = []
     for lk, r in zip(models, runs):
         tt_k, lb_k = terms(r.samples, table, lk, model_error)
@@ -365,7 +365,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     return LearnResult(posterior=post, table=table, accuracy_before=acc_b, accuracy_after=acc_a,
                        prior_probability_stable=p_prior, loo_probability_stable=p_loo,
                        warnings=tuple(warnings), timings_s=timings,
-                       log_evidence=float(log_z.max() + np.log(np.mean(np.exp(log_z - log_z.max())))),
+                       log_evidence=float(logsumexp(log_z) - np.log(log_z.size)),
                        model_error=model_error, mislabel_probability=p_wrong,
                        components=components if len(components) > 1 else (),
                        model_probability=tuple(float(w) for w in model_weight) if len(components) > 1 else ())
