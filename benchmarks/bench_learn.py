@@ -36,7 +36,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from planner.learn.likelihood import LEARNED_MISLABEL_SD, STABLE, Likelihood
+from planner.learn.likelihood import DETECTION_LAG, DETECTION_SCALE, LEARNED_MISLABEL_SD, STABLE, Likelihood
 from planner.learn.outcomes_io import CutTable
 from planner.learn.posterior import PriorSD
 from planner.learn.predictive import lobes_from_table, predict_cuts, predictive_grid, probability_lobes
@@ -452,6 +452,11 @@ def main(argv=None):
     ap.add_argument("--labels", choices=["sdm", "records"], default="sdm",
                     help="training marks from the converged SDM with --flip flipped, or from simulated records "
                          "judged by the chatter detection (its confidence the weight)")
+    ap.add_argument("--detection-lag", type=float, default=DETECTION_LAG,
+                    help="log-depth lag of the detected outcomes' boundary (--labels records; 0 with "
+                         "--detection-scale 0.03: read as marks, the model before session 9)")
+    ap.add_argument("--detection-scale", type=float, default=DETECTION_SCALE,
+                    help="width of the detected outcomes' boundary")
     ap.add_argument("--suggest-seeds", type=int, default=4)
     ap.add_argument("--suggest-max-cuts", type=int, default=18)
     ap.add_argument("--suggest-first", type=int, default=0, help="first suggest seed (split a run over processes)")
@@ -472,7 +477,8 @@ def main(argv=None):
         summary(sorted(rows, key=lambda r: r["seed"]), args.sizes, base_sizes, args.held, log)
         return
     likelihood = Likelihood(mislabel_sd=0.0 if args.mislabel_model == "fixed" else args.mislabel_sd,
-                            mislabel_average=args.mislabel_model == "average")
+                            mislabel_average=args.mislabel_model == "average",
+                            detection_lag=args.detection_lag, detection_scale=args.detection_scale)
     rows = []
     t_all = time.perf_counter()
     for seed in (args.seed_list if args.seed_list else range(args.seeds)):

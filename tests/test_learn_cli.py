@@ -134,7 +134,8 @@ def test_prior_sd_option(files, capsys, tmp_path):
     assert code == 2 and "--prior-sd" in err
 
 
-@pytest.mark.parametrize("option,value", [("--mislabel", "0.5"), ("--mislabel", "-0.1"), ("--mislabel-sd", "-1")])
+@pytest.mark.parametrize("option,value", [("--mislabel", "0.5"), ("--mislabel", "-0.1"), ("--mislabel-sd", "-1"),
+                                          ("--detection-lag", "-0.1"), ("--detection-scale", "0")])
 def test_mislabel_options(files, capsys, tmp_path, option, value):
     d, _ = files
     code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",
@@ -162,6 +163,18 @@ def test_mislabel_options_choose_the_model_of_the_share(argv, mode):
     lk = _likelihood(args)
     got = "average" if lk.averages_mislabel else "learned" if lk.learns_mislabel else "fixed"
     assert got == mode
+
+
+def test_detection_options_set_the_boundary_of_detected_outcomes():
+    from planner.cli import build_parser
+    from planner.learn.cli import _likelihood
+    from planner.learn.likelihood import DETECTION_LAG, DETECTION_SCALE
+
+    base = ["learn", "s.yaml", "--model", "m.yaml", "--cuts", "c.csv"]
+    lk = _likelihood(build_parser().parse_args(base))
+    assert (lk.detection_lag, lk.detection_scale) == (DETECTION_LAG, DETECTION_SCALE)
+    lk = _likelihood(build_parser().parse_args(base + ["--detection-lag", "0", "--detection-scale", "0.03"]))
+    assert (lk.detection_lag, lk.detection_scale) == (0.0, 0.03)
 
 
 def test_averaged_mislabel_rate_is_reported_and_read_back(files, capsys, tmp_path):

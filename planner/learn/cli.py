@@ -57,6 +57,12 @@ def add_parsers(sub) -> None:
     p.add_argument("--mislabel-model", choices=["fixed", "learned", "average"], default=None,
                    help="the share of wrong marks fixed at --mislabel, learned, or both averaged by their evidence "
                         "(default: average; learned when only --mislabel-sd > 0 is given; fixed with --mislabel 0)")
+    p.add_argument("--detection-lag", type=float, default=None, metavar="LOG",
+                   help="outcomes detected from records: how far (log depth ratio) beyond the limit half of "
+                        "the chattering cuts are detected (default 0.22, measured on robomill's detection; 0 "
+                        "with --detection-scale 0.03 treats them as marks)")
+    p.add_argument("--detection-scale", type=float, default=None, metavar="LOG",
+                   help="width (log depth ratio) of the detected outcomes' soft boundary (default 0.11)")
     p.add_argument("--samples", type=int, default=2000, help="posterior particles")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rpm", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
@@ -79,8 +85,16 @@ def _speed_range(args, setup, cuts):
 
 
 def _likelihood(args):
-    """The outcome likelihood of ``--mislabel``, ``--mislabel-sd``, ``--mislabel-model``."""
-    from .likelihood import LEARNED_MISLABEL_SD, Likelihood
+    """The outcome likelihood of ``--mislabel``, ``--mislabel-sd``, ``--mislabel-model``,
+    ``--detection-lag``, ``--detection-scale``."""
+    from .likelihood import DETECTION_LAG, DETECTION_SCALE, LEARNED_MISLABEL_SD, Likelihood
+
+    lag = DETECTION_LAG if args.detection_lag is None else args.detection_lag
+    width = DETECTION_SCALE if args.detection_scale is None else args.detection_scale
+    if not 0 <= lag < 1:
+        raise UsageError("--detection-lag", "a log depth ratio in [0, 1)", str(args.detection_lag))
+    if not 0 < width < 1:
+        raise UsageError("--detection-scale", "a log depth ratio in (0, 1)", str(args.detection_scale))
 
     # default: averaged (the marks of real shops are noisier than any one fixed rate; on the
     # benchmark's clean marks averaging cost 1 point of boundary error, docs/learn.md), learned
@@ -97,7 +111,7 @@ def _likelihood(args):
         raise UsageError("--mislabel-model", f"--mislabel > 0 and --mislabel-sd > 0 to learn the share ({mode})",
                          f"--mislabel {args.mislabel:g} --mislabel-sd {sd:g}")
     return Likelihood(mislabel=args.mislabel, mislabel_sd=0.0 if mode == "fixed" else sd,
-                      mislabel_average=mode == "average")
+                      mislabel_average=mode == "average", detection_lag=lag, detection_scale=width)
 
 
 def _cmd_learn(args) -> int:

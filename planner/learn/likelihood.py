@@ -39,6 +39,23 @@ power ``uncertain_weight`` (0.3), so it is weak evidence, never ignored. A label
 record enters raised to its detection confidence (0..1). This is the Bayesian-stability
 likelihood of Karandikar et al. (J. Manuf. Sci. Eng. 136, 2014) with a label-noise term, as
 Cornelius et al. (Procedia Manuf. 53, 2021) use for reverse identification.
+
+A detected mark is not a mark with a different weight: a detector is wrong in its own way. Near
+the limit the chatter of a cut with the tool leaving the cut saturates at an amplitude below the
+forced tooth lines, so ``diagnose``'s detection calls it stable up to well above the limit, and
+just below the limit the nearly undamped chatter pole rings under the background force and is
+sometimes called chatter. Its boundary is lagged and wider:
+
+    P(detected 'chatter') = eps + (1 - 2 eps) Phi_logistic((log(a / b) - lag) / s_d),
+
+``lag`` = ``detection_lag`` (0.22: half of the chattering cuts are detected at 1.25x the limit)
+and ``s_d`` = ``detection_scale`` (0.11), the forward model's error in quadrature. Measured
+(``benchmarks/bench_detection.py``, docs/learn.md) on 300 cuts recorded for 2 and for 4 s and 300
+others for 1 s: the fitted lag is 0.16-0.28 and the scale 0.07-0.17 whatever the record length, so
+it is the detector's threshold against a saturated amplitude, not growth time (a 4x finer
+simulation step changes no outcome). ``detection_lag = 0``
+with ``detection_scale = boundary_scale`` treats detected marks like marks (before session 9: the
+posterior over-confident towards "stable", its 90 % band holding the truth at 69-74 % of the speeds).
 """
 
 from __future__ import annotations
@@ -48,12 +65,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.special import expit, log_expit
 
-__all__ = ["Likelihood", "STABLE", "CHATTER", "UNCERTAIN", "LEARNED_MISLABEL_SD"]
+__all__ = ["Likelihood", "STABLE", "CHATTER", "UNCERTAIN", "LEARNED_MISLABEL_SD", "DETECTION_LAG",
+           "DETECTION_SCALE"]
 
 STABLE, CHATTER, UNCERTAIN = 0, 1, 2
 #: The log-odds sd of a learned rate of wrong marks when none is given (90 % of the prior
 #: between 0.7 % and 22 % around a median of 5 %).
 LEARNED_MISLABEL_SD = 1.2
+#: Log-depth lag and width of the boundary of outcomes detected from records (module notes).
+DETECTION_LAG = 0.22
+DETECTION_SCALE = 0.11
 
 
 @dataclass(frozen=True)
@@ -67,12 +88,16 @@ class Likelihood:
     model_error: float = 0.0
     mislabel_sd: float = 0.0
     mislabel_average: bool = False
+    detection_lag: float = DETECTION_LAG
+    detection_scale: float = DETECTION_SCALE
 
     def __post_init__(self):
         if not 0 <= self.mislabel < 0.5:
             raise ValueError(f"mislabel must be in [0, 0.5), found {self.mislabel}")
-        if not (self.boundary_scale > 0 and self.uncertain_scale > 0):
-            raise ValueError("boundary_scale and uncertain_scale must be > 0")
+        if not (self.boundary_scale > 0 and self.uncertain_scale > 0 and self.detection_scale > 0):
+            raise ValueError("boundary_scale, uncertain_scale and detection_scale must be > 0")
+        if not 0 <= self.detection_lag < 1:
+            raise ValueError(f"detection_lag must be in [0, 1), found {self.detection_lag}")
         if not self.model_error >= 0:
             raise ValueError(f"model_error must be >= 0, found {self.model_error}")
         if not self.mislabel_sd >= 0:
@@ -125,16 +150,32 @@ class Likelihood:
         """Chance the cut chatters, ``log_ratio = log(a / b)``."""
         return expit(np.asarray(log_ratio) / self.scale(model_error))
 
-    def log_terms(self, log_ratio, outcome, weight, *, model_error=None, mislabel=None) -> np.ndarray:
+    def mark_logit(self, log_ratio, detected=None, *, model_error=None) -> np.ndarray:
+        """Log-odds that a cut's outcome reads 'chatter' before any wrong mark: ``log(a/b) / s``
+        for a mark, ``(log(a/b) - lag) / s_d`` where ``detected`` (n_cuts,) says the outcome was
+        detected from a record."""
+        r = np.asarray(log_ratio, dtype=float)
+        x = r / self.scale(model_error)
+        if detected is None or not np.any(detected):
+            return x
+        xd = (r - self.detection_lag) / self.scale(model_error, width=self.detection_scale)
+        return np.where(np.asarray(detected, dtype=bool), xd, x)
+
+    def p_mark_chatter(self, log_ratio, detected=None, *, model_error=None) -> np.ndarray:
+        """Chance the outcome reads 'chatter' (a mark: the cut chatters; detected: it is detected)."""
+        return expit(self.mark_logit(log_ratio, detected, model_error=model_error))
+
+    def log_terms(self, log_ratio, outcome, weight, *, model_error=None, mislabel=None, detected=None) -> np.ndarray:
         """Weighted log-likelihood of each cut, shape of ``log_ratio`` (``(..., n_cuts)``).
 
         ``outcome`` (n_cuts,) holds STABLE, CHATTER or UNCERTAIN; ``weight`` (n_cuts,) the label
         weights (the tempering of uncertain marks is applied here, on top); ``model_error``
         (n_cuts,) the forward model's error at each cut (default ``self.model_error``);
         ``mislabel`` the mislabel rate, broadcast against ``log_ratio`` (e.g. one per sample,
-        shape ``(n_samples, 1)``; default ``self.mislabel``).
+        shape ``(n_samples, 1)``; default ``self.mislabel``); ``detected`` (n_cuts,) which
+        outcomes were detected from records (their lagged boundary, module notes).
         """
-        x = np.asarray(log_ratio, dtype=float) / self.scale(model_error)
+        x = self.mark_logit(log_ratio, detected, model_error=model_error)
         eps = np.asarray(self.mislabel if mislabel is None else mislabel, dtype=float)
         with np.errstate(divide="ignore"):
             log_eps = np.log(eps)
@@ -152,4 +193,5 @@ class Likelihood:
         return {"mislabel": self.mislabel, "boundary_scale": self.boundary_scale,
                 "uncertain_scale": self.uncertain_scale, "uncertain_weight": self.uncertain_weight,
                 "model_error": self.model_error, "mislabel_sd": self.mislabel_sd,
-                "mislabel_average": self.mislabel_average}
+                "mislabel_average": self.mislabel_average, "detection_lag": self.detection_lag,
+                "detection_scale": self.detection_scale}

@@ -133,7 +133,9 @@ def mislabel_probability(p_stable_each: np.ndarray, mislabel: np.ndarray, cuts: 
     """Posterior probability that each cut's mark is wrong, (n_cuts,); NaN for ``uncertain`` and
     unmarked cuts.
 
-    Given a sample (true P(stable) ``p``, mislabel rate ``eps``), a mark 'stable' is wrong with
+    Given a sample (``p`` the chance that the outcome reads 'stable' before any wrong mark: the
+    cut's P(stable), or for a detected outcome the detector's, ``Likelihood.p_mark_chatter``;
+    mislabel rate ``eps``), a mark 'stable' is wrong with
     probability ``eps (1 - p) / (eps + (1 - 2 eps) p)`` (Bayes on the likelihood's label model), a
     mark 'chatter' likewise with ``p`` and ``1 - p`` swapped; averaged over the posterior samples.
     ``p_stable_each``: (n_samples, n_cuts); ``mislabel``: (n_samples,).
@@ -219,7 +221,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         u = full(x)
         lb = table.log_limit(u[:, 0], u[:, 1], u[:, 2], u[:, 3], u[:, 4])
         return lk.log_terms(log_a[None, :] - lb, cuts.outcome, np.where(labelled, cuts.weight, 0.0),
-                            model_error=model_error, mislabel=rate(x, lk)[:, None]), lb
+                            model_error=model_error, mislabel=rate(x, lk)[:, None], detected=cuts.detected), lb
 
     def inside(table):
         """The table's range, where the posterior is kept: outside it the table clips to its edge,
@@ -304,7 +306,9 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     p_each = 1.0 - likelihood.p_chatter(log_a[None, :] - lb, model_error=model_error)
     post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u, log_posterior=lp,
                      likelihood=likelihood, method=method, mislabel_samples=eps)
-    p_wrong = mislabel_probability(p_each, eps, cuts)
+    # a mark is wrong against what its source would say (a detected one: the lagged detection)
+    p_wrong = mislabel_probability(1.0 - likelihood.p_mark_chatter(log_a[None, :] - lb, cuts.detected,
+                                                                   model_error=model_error), eps, cuts)
     # the prior's own prediction: fresh prior samples (no data used, so no cross-validation needed),
     # through the table that spans the prior (the coarse one; the fine one covers the posterior only)
     u0 = np.zeros((n_particles, 5))
