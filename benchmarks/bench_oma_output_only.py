@@ -345,7 +345,8 @@ def main(argv=None):
     ap.add_argument("--peer-seeds", type=int, default=6)
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
     ap.add_argument("--no-hurco", action="store_true")
-    ap.add_argument("--ml-directions", action="store_true", help="report the ML refinement's directions")
+    ap.add_argument("--ssi-directions", action="store_true",
+                    help="SSI's directions for every mode (before session 9; default: the ML refinement's for close modes)")
     ap.add_argument("--ssi-derivatives", type=int, nargs="+", default=None,
                     help="the SSI views (derivatives of the displacement; default: the library's)")
     ap.add_argument("--hurco-files", type=int, default=None)
@@ -356,7 +357,7 @@ def main(argv=None):
 
     with single_threaded_blas():
         for case in args.cases if args.seeds else ():
-            options = {"ml_directions": True} if args.ml_directions else {}
+            options = {"ml_directions": False} if args.ssi_directions else {}
             if args.ssi_derivatives:
                 options["ssi_derivatives"] = tuple(args.ssi_derivatives)
             rows = run_ours(case, range(args.seeds), options)

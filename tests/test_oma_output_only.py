@@ -197,6 +197,23 @@ def test_identify_output_only_scales_x_and_y_and_flags_what_it_cannot():
     json.dumps(d)
 
 
+def test_close_modes_take_the_refined_directions_and_scale_better():
+    """The close pair (10.0 / 10.5 Hz) takes the ML refinement's directions, the separate 24.8 Hz
+    mode keeps SSI's exactly; over eight records the X stiffness is scaled better with them
+    (measured 2026-11-25, seeds 0-7: mean |error| 3.2 % with SSI's directions, 1.8 % with the
+    refined ones; the benchmark's worst records 15-18 % -> 9-10 %)."""
+    err = {False: [], True: []}
+    for seed in range(8):
+        res = {opt: identify_output_only([_record(seed)], ml_directions=opt) for opt in (False, True)}
+        jy = [_match(r.model.natural_frequency_hz, r.model.directions, 1) for r in res.values()]
+        np.testing.assert_array_equal(res[False].model.directions[jy[0]], res[True].model.directions[jy[1]])
+        for opt, r in res.items():
+            j = _match(r.model.natural_frequency_hz, r.model.directions, 0)
+            err[opt].append(r.model.stiffness_N_m[j] / TRUTH.stiffness_N_m[0] - 1)
+    ssi, refined = (np.abs(err[o]) for o in (False, True))
+    assert refined.mean() < 0.75 * ssi.mean() and refined.max() < 0.10, (ssi, refined)
+
+
 def test_no_harmonics_no_scale_and_untrusted():
     res = identify_output_only([_record(5, harmonics=False)])
     assert res.scaling == "none" and not res.trusted and not res.scaled

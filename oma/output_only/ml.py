@@ -321,6 +321,27 @@ def _information_se(p, mod: _Model, x, u, direction_scale) -> np.ndarray:
     return out
 
 
+def band_groups(freq_hz, damping, *, half_width: float = 6.0, min_half_width_hz: float = 1.0) -> list[list[int]]:
+    """The groups of modes that :func:`refine_modes_ml` fits jointly: modes whose bands
+    ``f (1 +- half_width zeta)`` (at least ``min_half_width_hz``) overlap, in order of frequency."""
+    f0, z0 = np.asarray(freq_hz, dtype=float), np.asarray(damping, dtype=float)
+    if f0.size == 0:
+        return []
+    hw = np.maximum(half_width * z0 * f0, min_half_width_hz)
+    lo, hi = f0 - hw, f0 + hw
+    order = np.argsort(lo)
+    groups, cur, cur_hi = [], [int(order[0])], hi[order[0]]
+    for k in order[1:]:
+        if lo[k] <= cur_hi:
+            cur.append(int(k))
+            cur_hi = max(cur_hi, hi[k])
+        else:
+            groups.append(cur)
+            cur, cur_hi = [int(k)], hi[k]
+    groups.append(cur)
+    return groups
+
+
 def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directions, *, derivative: int = 2,
                     lines_hz=(), half_width: float = 6.0, min_half_width_hz: float = 1.0,
                     line_guard_hz: float = 0.1, max_iter: int = 40, evidence: dict | None = None,
@@ -421,14 +442,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         gapped.append(spectra(rs))
     hw = np.maximum(half_width * z0 * f0, min_half_width_hz)
     lo, hi = f0 - hw, f0 + hw
-    order = np.argsort(lo)
-    groups, cur, cur_hi = [], [order[0]], hi[order[0]]
-    for k in order[1:]:
-        if lo[k] <= cur_hi:
-            cur.append(k); cur_hi = max(cur_hi, hi[k])
-        else:
-            groups.append(cur); cur, cur_hi = [k], hi[k]
-    groups.append(cur)
+    groups = band_groups(f0, z0, half_width=half_width, min_half_width_hz=min_half_width_hz)
     lines = np.asarray(lines_hz, dtype=float).ravel()
     kinds = (False, "known") if residual_terms == "auto" else \
         tuple(residual_terms) if isinstance(residual_terms, (tuple, list)) else (residual_terms,)
