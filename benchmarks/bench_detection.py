@@ -42,9 +42,10 @@ def fit_lag(log_r, chatter, weight) -> tuple[float, float, float]:
     def nll(p):
         lag, log_s, logit_e = p
         e = 0.5 * expit(logit_e)
-        x = (log_r - lag) / np.exp(log_s)
-        log_ch = np.logaddexp(np.log(e), np.log1p(-2 * e) + log_expit(x))
-        log_st = np.logaddexp(np.log(e), np.log1p(-2 * e) + log_expit(-x))
+        with np.errstate(divide="ignore", over="ignore"):  # eps -> 0 and a step-like boundary are allowed
+            x = (log_r - lag) / np.exp(log_s)
+            log_ch = np.logaddexp(np.log(e), np.log1p(-2 * e) + log_expit(x))
+            log_st = np.logaddexp(np.log(e), np.log1p(-2 * e) + log_expit(-x))
         return -np.sum(weight * np.where(chatter, log_ch, log_st))
 
     res = minimize(nll, [0.1, np.log(0.1), -3.0], method="Nelder-Mead",
