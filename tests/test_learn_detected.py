@@ -76,7 +76,8 @@ def test_the_lagged_boundary_keeps_a_late_detector_from_pulling_the_limit_up(det
     """With the detector's lag in the likelihood, the truth's stiffness (which sets the limit's
     scale here) lies inside the posterior's 5-95 % range; read as marks, the same outcomes put the
     limit too high: the posterior's stiffness above the truth by more than half the lag and the
-    truth outside its 5-95 % range (the over-confidence towards 'stable' of session 7)."""
+    truth outside its 5-95 % range (the over-confidence towards 'stable' of session 7). The lagged
+    reading is said in a warning."""
     problem, cuts, table, free, truth_u = detected_problem
     lk = Likelihood(detection_lag=LAG, detection_scale=WIDTH)
     as_marks = replace(lk, detection_lag=0.0, detection_scale=lk.boundary_scale)
@@ -86,6 +87,8 @@ def test_the_lagged_boundary_keeps_a_late_detector_from_pulling_the_limit_up(det
         res = learn(problem.setup, problem.prior, cuts, free=free, table=table, n_particles=1500, seed=3,
                     validate=0, likelihood=like)
         q[name] = np.quantile(res.posterior.samples[:, 1], [0.05, 0.5, 0.95])
+        # the user is told that the detected outcomes are read with a lag they may need to set
+        assert any("detected from records" in w for w in res.warnings) == (name == "lagged")
     lo, med, hi = q["lagged"]
     assert lo <= k_true <= hi, q
     lo_m, med_m, hi_m = q["marks"]

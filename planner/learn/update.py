@@ -359,6 +359,12 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         warnings.append(f"{suspects.size} mark(s) look wrong (probability > {SUSPECT_LABEL:g}), rows "
                         + ", ".join(str(int(i)) for i in suspects[:10]) + (" ..." if suspects.size > 10 else "")
                         + ": check them (suspect_labels)")
+    n_detected = int(np.sum(cuts.detected & labelled))
+    if n_detected and likelihood.detection_lag > 0:
+        warnings.append(f"{n_detected} outcome(s) detected from records are read with the detection's lag: half of "
+                        f"the chattering cuts read as chatter at {np.exp(likelihood.detection_lag):.2f}x the limit, "
+                        "as measured with robomill's detection on simulated records; another detector, sensor or "
+                        "record length may lag differently (--detection-lag)")
     big = model_error > 3 * likelihood.boundary_scale
     if big.mean() > 0.25:
         warnings.append(f"the limit tables are off by more than {3 * likelihood.boundary_scale:.0%} at "
