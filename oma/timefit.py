@@ -37,274 +37,29 @@ References
 G. Golub, V. Pereyra, "Separable nonlinear least squares: the variable projection method and its
 applications", Inverse Problems 19 (2003) R1-R26. R. E. Kass, A. E. Raftery, "Bayes factors",
 J. Amer. Statist. Assoc. 90 (1995) 773-795. G. Schwarz, Ann. Statist. 6 (1978) 461-464.
+
+The estimator is here; the model and the variable-projection problem are in
+:mod:`oma._timefit_model`, the result and its standard errors in :mod:`oma._timefit_result`.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-
-from ._arrays import readonly as _ro
 from scipy import optimize
-from scipy import signal as sps
 
 from ._linalg import blas_single_threaded, lstsq_normal
 from .modal_fit import _residue_modes
-from .harmonics import Harmonics, fit_harmonic_signal, harmonic_basis
+from .harmonics import Harmonics
 from .modal import ModalModel
-from .quantised import MIN_BLOCKS, MIN_DAMPING, block_labels, free_residue_ml, modal_form_ml, sandwich_se
+from .quantised import MIN_DAMPING, free_residue_ml, modal_form_ml
 from .signals import PreparedSignals
-from .synthetic import mode_filter
+from ._timefit_model import _Problem, _prepare, modal_response  # noqa: F401 (modal_response: re-exported)
+from ._timefit_result import NoModeFound, TimeFit, _ls_block_sandwich, _misfit, _time_fit_from_rank_one
 
 __all__ = ["TimeFit", "fit_time_domain", "NoModeFound"]
-
-
-class NoModeFound(ValueError):
-    """The records support no mode (nothing but rounding noise and forced response)."""
-
-
-@dataclass(frozen=True)
-class TimeFit:
-    """Result of :func:`fit_time_domain`.
-
-    Attributes
-    ----------
-    model : ModalModel
-    residues : ndarray, shape (n_modes, 3, 3)
-        Residue matrices ``A_r`` of the modes, m/N s^-2 (rows outputs, columns inputs): the free
-        least-squares residues of the mode's pole, or ``phi_r phi_r^T`` in the modal form.
-    residual_rms_m : ndarray, shape (3,)
-        RMS of the displacement residual per output, m (NaN where not measured).
-    fit_error : ndarray, shape (3,)
-        Relative misfit of the dynamic response per output: ``sqrt((||y - x_fit||^2 - N q^2/12) /
-        (||y_dyn||^2 - N q^2/12))``, the rounding noise ``q^2/12`` of quantised displacement taken
-        out of both (plain ``||y - x_fit|| / ||y_dyn||`` otherwise).
-    noise_scale_m : ndarray, shape (3,)
-        Scale ``s`` of the Gaussian error inside the rounding, per output, m (NaN when the
-        displacement was not quantised and least squares was used).
-    quantised : bool
-        Whether the quantised-output likelihood was used.
-    dropped_modes_hz, split_modes_hz : tuple
-        Modes removed, and modes split in two, by the information criterion.
-    success : bool
-    message : str
-    frequency_se_hz, damping_se : ndarray, shape (n_modes,)
-        Standard errors of the model's natural frequencies and damping ratios from a block
-        sandwich (the residuals' own correlation counted) of the modal-form likelihood
-        (:func:`oma.quantised._block_sandwich`) or of the least squares
-        (:func:`_ls_block_sandwich`); NaN where not available (the free-residue likelihood of
-        rounded data with different input and output axes, or fewer than
-        :data:`oma.quantised.MIN_BLOCKS` blocks of data).
-    n_blocks : int
-        Blocks behind those standard errors (their intervals use ``n_blocks - 1`` degrees of
-        freedom).
-    """
-
-    model: ModalModel
-    residues: np.ndarray
-    residual_rms_m: np.ndarray
-    fit_error: np.ndarray
-    noise_scale_m: np.ndarray
-    quantised: bool = False
-    dropped_modes_hz: tuple = ()
-    split_modes_hz: tuple = ()
-    success: bool = True
-    message: str = ""
-    frequency_se_hz: np.ndarray | None = None
-    damping_se: np.ndarray | None = None
-    n_blocks: int = 0
-
-    def __post_init__(self):
-        for name in ("frequency_se_hz", "damping_se"):
-            if getattr(self, name) is None:
-                object.__setattr__(self, name, np.full(self.model.n_modes, np.nan))
-        for name in ("residues", "residual_rms_m", "fit_error", "noise_scale_m", "frequency_se_hz", "damping_se"):
-            object.__setattr__(self, name, _ro(getattr(self, name)))
-
-
-def modal_response(p, f0, z0, fs, derivative=0):
-    """Response of a unit-mass mode to sampled forces ``p`` (rows), first-order hold.
-
-    ``derivative`` 0, 1, 2: displacement, velocity, acceleration. The acceleration follows from the
-    equation of motion, ``q'' = p - 2 zeta w q' - w^2 q``, exact like the other two.
-    """
-    if derivative < 2:
-        return sps.lfilter(*mode_filter(f0, z0, fs, derivative=derivative), p, axis=-1)
-    w = 2.0 * np.pi * f0
-    q = sps.lfilter(*mode_filter(f0, z0, fs), p, axis=-1)
-    qd = sps.lfilter(*mode_filter(f0, z0, fs, derivative=1), p, axis=-1)
-    return p - 2.0 * z0 * w * qd - w * w * q
-
-
-class _Problem:
-    """The stacked variable-projection problem over records and outputs."""
-
-    def __init__(self, records, *, residual: bool):
-        self.records = records  # list of dicts with p (n_in, n), y (n_out_all, n), t, nuis (n, k)
-        self.residual = residual
-        self.fs = records[0]["fs"]
-        self.n_in = records[0]["p"].shape[0]
-        self.outputs = records[0]["outputs"]
-        self.derivative = records[0]["derivative"]  # output: displacement (0), velocity (1), acceleration (2)
-        # residuals in units of each output's rms (keeps the optimiser's tolerances meaningful)
-        ms = np.array([np.mean(np.concatenate([r["y_proj"][k] for r in records]) ** 2)
-                       for k in range(len(self.outputs))])
-        self.out_weight = 1.0 / np.sqrt(np.where(ms > 0, ms, 1.0))
-
-    def mode_columns(self, rec, f0, z0):
-        """Columns of one mode: its forced responses ``(n, n_in)`` and free responses ``(n, 2)``."""
-        p, t = rec["p"], rec["t"]
-        forced = modal_response(p, f0, z0, self.fs, self.derivative).T
-        w = 2 * np.pi * f0
-        wd = w * np.sqrt(max(1 - z0 * z0, 1e-12))
-        env = np.exp(-z0 * w * t)
-        return forced, np.column_stack([env * np.cos(wd * t), env * np.sin(wd * t)])
-
-    def regressors(self, rec, fn, zeta):
-        """Columns shared across records (residues, residual) and the record's own (free response)."""
-        p, t = rec["p"], rec["t"]
-        shared = []
-        for f0, z0 in zip(fn, zeta):
-            shared.append(modal_response(p, f0, z0, self.fs, self.derivative))  # (n_in, n)
-        shared = np.concatenate(shared, axis=0) if shared else np.zeros((0, t.size))
-        if self.residual:
-            shared = np.concatenate([shared, p], axis=0)
-        own = []
-        for f0, z0 in zip(fn, zeta):
-            w = 2 * np.pi * f0
-            wd = w * np.sqrt(max(1 - z0 * z0, 1e-12))
-            env = np.exp(-z0 * w * t)
-            own += [env * np.cos(wd * t), env * np.sin(wd * t)]
-        own = np.array(own) if own else np.zeros((0, t.size))
-        return shared.T, own.T
-
-    def solve(self, fn, zeta, *, full=False):
-        """Linear least squares for all outputs; returns the weighted residual vector.
-
-        The static and forced-response columns (``nuis``) do not depend on the poles and are
-        projected out once per record (an orthonormal basis ``Q``); the rest is solved through
-        the normal equations of the projected columns. With ``full`` also returns, per output,
-        the coefficients of the shared columns and per record the dynamic and nuisance parts.
-        """
-        blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
-        n_shared = blocks[0][0].shape[1]
-        n_own = [b[1].shape[1] for b in blocks]
-        n_cols = n_shared + sum(n_own)
-        proj = []
-        for (sh, own), rec in zip(blocks, self.records):
-            a = np.hstack([sh, own])
-            qn = rec["q_nuis"]
-            proj.append(a - qn @ (qn.T @ a))
-        gram = np.zeros((n_cols, n_cols))
-        col = n_shared
-        slices = []
-        for a, k in zip(proj, n_own):
-            idx = np.r_[0:n_shared, col : col + k]
-            gram[np.ix_(idx, idx)] += a.T @ a
-            slices.append(idx)
-            col += k
-        scale = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
-        gs = gram / np.outer(scale, scale)
-        gs[np.diag_indices_from(gs)] += 1e-12
-        resid_all, dyn_all = [], []
-        for k in range(len(self.outputs)):
-            rhs = np.zeros(n_cols)
-            for a, idx, rec in zip(proj, slices, self.records):
-                rhs[idx] += a.T @ rec["y_proj"][k]
-            c = np.linalg.solve(gs, rhs / scale) / scale
-            parts = []
-            for a, idx, rec in zip(proj, slices, self.records):
-                fit = a @ c[idx]
-                resid_all.append(self.out_weight[k] * (rec["y_proj"][k] - fit))
-                parts.append(c[idx])
-            dyn_all.append(parts)
-        resid = np.concatenate(resid_all)
-        if not full:
-            return resid
-        coefs = [parts[0][:n_shared] for parts in dyn_all]
-        preds = []
-        for k in range(len(self.outputs)):
-            per = []
-            for (sh, own), idx, rec, cc in zip(blocks, slices, self.records, dyn_all[k]):
-                dyn = np.hstack([sh, own]) @ cc
-                rest = rec["y"][k] - dyn
-                nuis = rec["q_nuis"] @ (rec["q_nuis"].T @ rest)
-                per.append((dyn, nuis))
-            preds.append(per)
-        return resid, coefs, preds
-
-    def sweep(self, fn, zeta, grid_hz, zeta0, *, output=None):
-        """Residual sum of squares after adding one mode ``(f, zeta0)`` for each ``f`` of a grid.
-
-        The current modes and the nuisance columns are projected out once; each candidate's
-        columns are orthogonalised against them, so a candidate costs one small projection.
-        """
-        x, _ = self.full_design(fn, zeta)
-        n_rows = x.shape[0]
-        qx = np.linalg.qr(x)[0] if x.shape[1] else np.zeros((n_rows, 0))
-        y = np.concatenate([r["y"] for r in self.records], axis=1) * self.out_weight[:, None]
-        if output is not None:
-            y = y[output : output + 1]
-        r0 = y - (y @ qx) @ qx.T
-        base = float(np.sum(r0**2))
-        out = np.empty(len(grid_hz))
-        for g, f0 in enumerate(grid_hz):
-            cols = []
-            row = 0
-            for i_rec, rec in enumerate(self.records):
-                forced, free = self.mode_columns(rec, f0, zeta0)
-                n = forced.shape[0]
-                c = np.zeros((n_rows, forced.shape[1] + 2 * len(self.records)))
-                c[row : row + n, : forced.shape[1]] = forced
-                j = forced.shape[1] + 2 * i_rec
-                c[row : row + n, j : j + 2] = free
-                cols.append(c)
-                row += n
-            c = np.sum(cols, axis=0)
-            c = c - qx @ (qx.T @ c)
-            gram = c.T @ c
-            gram[np.diag_indices_from(gram)] += 1e-12 * np.trace(gram) + 1e-300
-            proj = r0 @ c  # (n_out, k)
-            out[g] = base - float(np.sum(proj * np.linalg.solve(gram, proj.T).T))
-        return out
-
-    def full_design(self, fn, zeta):
-        """Design matrix of all records stacked, ``(n_total, K)``, and the nuisance column mask.
-
-        Columns: the shared ones (residues, residual), then per record its free-response and
-        nuisance columns (zero on the other records' rows).
-        """
-        blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
-        n_shared = blocks[0][0].shape[1]
-        own = [np.hstack([b[1], rec["nuis"]]) for b, rec in zip(blocks, self.records)]
-        cols = n_shared + sum(o.shape[1] for o in own)
-        n_total = sum(o.shape[0] for o in own)
-        x = np.zeros((n_total, cols))
-        nuis = np.zeros(cols, dtype=bool)
-        row, col = 0, n_shared
-        for b, o, rec in zip(blocks, own, self.records):
-            n = o.shape[0]
-            x[row : row + n, :n_shared] = b[0]
-            x[row : row + n, col : col + o.shape[1]] = o
-            nuis[col + b[1].shape[1] : col + o.shape[1]] = True
-            row += n
-            col += o.shape[1]
-        return x, nuis
-
-    def unpack_residues(self, coefs, n_modes):
-        a = np.zeros((n_modes, 3, 3))
-        r = np.zeros((3, 3))
-        ins = self.records[0]["inputs"]
-        for k, o in enumerate(self.outputs):
-            c = coefs[k]
-            for m in range(n_modes):
-                a[m, o, ins] = c[m * self.n_in : (m + 1) * self.n_in]
-            if self.residual:
-                r[o, ins] = c[n_modes * self.n_in : (n_modes + 1) * self.n_in]
-        return a, r
 
 
 def _bic(rss, n, p):
@@ -381,25 +136,6 @@ def _directional_proposals(prob, pred, grid, zeta0):
             out.append((float(best_f), phi))
     return out
 
-
-def _prepare(signals, harmonics, inputs, outputs, derivative=0):
-    """Per record: background force ``p``, output ``y`` (the measured quantity of order
-    ``derivative``), the nuisance basis (trend and harmonics) and its orthonormal basis."""
-    recs = []
-    for s, h in zip(signals, harmonics):
-        fs = s.sample_rate_hz
-        n = s.n_samples
-        t = np.arange(n) / fs
-        f = s.force_N[inputs]
-        hz = h.freq_hz if h is not None else np.zeros(0)
-        p = f - fit_harmonic_signal(f, fs, hz, trend=True)
-        nuis = harmonic_basis(t, hz, trend=True)
-        q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
-        y = np.array(s.motion[outputs] if derivative else s.displacement_m[outputs])
-        recs.append({"p": p, "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t, "nuis": nuis, "q_nuis": q_nuis,
-                     "fs": fs, "outputs": list(outputs), "inputs": list(inputs), "step": s.quantisation_step_m,
-                     "derivative": derivative})
-    return recs
 
 
 def _nls(prob, fn, zeta, max_damping, *, rough=False):
@@ -719,100 +455,3 @@ def fit_time_domain(
         message=message, frequency_se_hz=fn[pole] * pole_se[pole], damping_se=zeta[pole] * pole_se[fn.size + pole],
         n_blocks=n_blocks,
     )
-
-
-def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6):
-    """Block-sandwich standard errors of ``(log fn, log zeta)`` of the least-squares fit.
-
-    The poles solve ``sum_o w_o^2 d_o^T r_o = 0`` with ``d_o`` the derivative of output ``o``'s
-    prediction projected off the linear columns (variable projection) and ``w_o`` the fit's output
-    weights; their influence is ``S^-1 sum_o w_o^2 d_o^T r_o`` with ``S = sum_o w_o^2 d_o^T d_o``,
-    and the scores summed over blocks (:func:`oma.quantised.block_labels`) give the sandwich, as
-    for the likelihood (:func:`oma.quantised._block_sandwich`), with the white-residual standard
-    error ``sigma_o^2 = rss_o / (N - K)`` as a floor. Returns the standard errors (2 n_modes,) and
-    the number of blocks (NaN errors below :data:`oma.quantised.MIN_BLOCKS`).
-    """
-    n_m = fn.size
-    _, starts = block_labels(prob.records, prob.fs, fn, zeta)
-    g_count = starts.size
-    nan = np.full(2 * n_m, np.nan)
-    if g_count < MIN_BLOCKS or n_m == 0:
-        return nan, g_count
-    n_tot, k = xd.shape
-    q_x, _ = np.linalg.qr(xd)
-    w2 = prob.out_weight ** 2
-    d = np.zeros((beta.shape[0], n_tot, 2 * n_m))
-    for j in range(2 * n_m):
-        f1, z1 = fn.copy(), zeta.copy()
-        if j < n_m:
-            f1[j] *= np.exp(step)
-        else:
-            z1[j - n_m] *= np.exp(step)
-        dx = (prob.full_design(f1, z1)[0] - xd) / step
-        d[:, :, j] = beta @ dx.T
-    d -= np.einsum("nk,okj->onj", q_x, np.einsum("nk,onj->okj", q_x, d))  # projected off the linear columns
-    s_mat = np.einsum("o,oni,onj->ij", w2, d, d)
-    scores = np.add.reduceat(np.einsum("o,onj,on->nj", w2, d, resid), starts, axis=0)
-    sigma2 = np.sum(resid ** 2, axis=1) / max(n_tot - k, 1)
-    try:
-        s_inv = np.linalg.inv(s_mat)
-    except np.linalg.LinAlgError:
-        return nan, g_count
-    model = s_inv @ np.einsum("o,oni,onj->ij", w2 ** 2 * sigma2, d, d) @ s_inv
-    return sandwich_se(s_inv, scores, model), g_count
-
-
-def _misfit(y_all, pred, nuis_part, recs, outputs, quantised):
-    """RMS residual and relative misfit of the dynamic response per output (see :class:`TimeFit`).
-
-    What the rounding alone explains (``q^2 / 12`` per sample of quantised displacement) is not a
-    misfit of the model and is taken out of both the residual and the dynamic response.
-    """
-    q_var = sum(rec["y"].shape[1] * (rec["step"] or 0.0) ** 2 / 12.0 for rec in recs) if quantised else 0.0
-    rms = np.full(3, np.nan)
-    ferr = np.full(3, np.nan)
-    for k, o in enumerate(outputs):
-        dyn_meas = y_all[k] - nuis_part[k]
-        num = float(np.sum((y_all[k] - pred[k]) ** 2))
-        den = float(np.sum((dyn_meas - dyn_meas.mean()) ** 2))
-        rms[o] = np.sqrt(num / y_all.shape[1])
-        excess = max(num - q_var, 0.0)
-        ferr[o] = np.sqrt(excess / max(den - q_var, 1e-300)) if den > 0 else np.nan
-    return rms, ferr
-
-
-def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source, message) -> TimeFit:
-    """The :class:`TimeFit` of a modal-form likelihood fit (:func:`oma.quantised.modal_form_ml`)."""
-    y_all = np.concatenate([rec["y_raw"] for rec in recs], axis=1)
-    rms, ferr = _misfit(y_all, r1["pred"], r1["nuis_part"], recs, outputs, True)
-    fn, zeta = r1["fn"], r1["zeta"]
-    phi = np.zeros((fn.size, 3))
-    phi[:, inputs] = r1["phi"]
-    norm = np.linalg.norm(phi, axis=1)
-    ok = norm > 0
-    k = (2 * np.pi * fn) ** 2 / np.where(ok, norm, 1.0) ** 2
-    u = phi / np.where(ok, norm, 1.0)[:, None]
-    u = u * np.sign(u[np.arange(fn.size), np.argmax(np.abs(u), axis=1)])[:, None]
-    # a mode whose resonant peak is below 1 % of the largest on every axis carries no measurable
-    # response (a pole the fit parked far from the data): dropped
-    u2 = u**2 / (k * zeta)[:, None]
-    visible = ok & np.any(u2 >= 0.01 * np.max(u2[ok], axis=0, keepdims=True), axis=1)
-    dropped = list(dropped) + [float(f) for f in fn[~visible]]
-    order = np.argsort(fn[visible])
-    sel = np.flatnonzero(visible)[order]
-    if sel.size == 0:
-        raise NoModeFound("the time-domain fit left no mode with a measurable response")
-    model = ModalModel(natural_frequency_hz=fn[sel], damping_ratio=zeta[sel], stiffness_N_m=k[sel],
-                       directions=u[sel], source=source)
-    residues = np.einsum("mi,mj->mij", phi[sel], phi[sel])
-    sigma = np.full(3, np.nan)
-    sigma[outputs] = r1["sigma"]
-    # standard errors of log fn, log zeta -> of fn, zeta (to first order)
-    log_se, n_blocks = r1["uncertainty"]()
-    se_f = fn[sel] * log_se[: fn.size][sel]
-    se_z = zeta[sel] * log_se[fn.size:][sel]
-    return TimeFit(model=model, residues=residues, residual_rms_m=rms, fit_error=ferr, noise_scale_m=sigma,
-                   quantised=True, dropped_modes_hz=tuple(dropped), split_modes_hz=tuple(split_hz),
-                   success=bool(r1["converged"]), message=message, frequency_se_hz=se_f, damping_se=se_z,
-                   n_blocks=int(n_blocks))
-

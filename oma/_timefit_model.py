@@ -1,0 +1,218 @@
+"""The time-domain fit's model: the response of a unit-mass mode, the records prepared for the
+fit, and the stacked variable-projection problem over records and outputs (:mod:`oma.timefit`).
+
+Private module: :func:`modal_response` is imported from :mod:`oma.timefit`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal as sps
+
+from .harmonics import fit_harmonic_signal, harmonic_basis
+from .synthetic import mode_filter
+
+__all__ = ["modal_response"]
+
+
+def modal_response(p, f0, z0, fs, derivative=0):
+    """Response of a unit-mass mode to sampled forces ``p`` (rows), first-order hold.
+
+    ``derivative`` 0, 1, 2: displacement, velocity, acceleration. The acceleration follows from the
+    equation of motion, ``q'' = p - 2 zeta w q' - w^2 q``, exact like the other two.
+    """
+    if derivative < 2:
+        return sps.lfilter(*mode_filter(f0, z0, fs, derivative=derivative), p, axis=-1)
+    w = 2.0 * np.pi * f0
+    q = sps.lfilter(*mode_filter(f0, z0, fs), p, axis=-1)
+    qd = sps.lfilter(*mode_filter(f0, z0, fs, derivative=1), p, axis=-1)
+    return p - 2.0 * z0 * w * qd - w * w * q
+
+
+class _Problem:
+    """The stacked variable-projection problem over records and outputs."""
+
+    def __init__(self, records, *, residual: bool):
+        self.records = records  # list of dicts with p (n_in, n), y (n_out_all, n), t, nuis (n, k)
+        self.residual = residual
+        self.fs = records[0]["fs"]
+        self.n_in = records[0]["p"].shape[0]
+        self.outputs = records[0]["outputs"]
+        self.derivative = records[0]["derivative"]  # output: displacement (0), velocity (1), acceleration (2)
+        # residuals in units of each output's rms (keeps the optimiser's tolerances meaningful)
+        ms = np.array([np.mean(np.concatenate([r["y_proj"][k] for r in records]) ** 2)
+                       for k in range(len(self.outputs))])
+        self.out_weight = 1.0 / np.sqrt(np.where(ms > 0, ms, 1.0))
+
+    def mode_columns(self, rec, f0, z0):
+        """Columns of one mode: its forced responses ``(n, n_in)`` and free responses ``(n, 2)``."""
+        p, t = rec["p"], rec["t"]
+        forced = modal_response(p, f0, z0, self.fs, self.derivative).T
+        w = 2 * np.pi * f0
+        wd = w * np.sqrt(max(1 - z0 * z0, 1e-12))
+        env = np.exp(-z0 * w * t)
+        return forced, np.column_stack([env * np.cos(wd * t), env * np.sin(wd * t)])
+
+    def regressors(self, rec, fn, zeta):
+        """Columns shared across records (residues, residual) and the record's own (free response)."""
+        p, t = rec["p"], rec["t"]
+        shared = []
+        for f0, z0 in zip(fn, zeta):
+            shared.append(modal_response(p, f0, z0, self.fs, self.derivative))  # (n_in, n)
+        shared = np.concatenate(shared, axis=0) if shared else np.zeros((0, t.size))
+        if self.residual:
+            shared = np.concatenate([shared, p], axis=0)
+        own = []
+        for f0, z0 in zip(fn, zeta):
+            w = 2 * np.pi * f0
+            wd = w * np.sqrt(max(1 - z0 * z0, 1e-12))
+            env = np.exp(-z0 * w * t)
+            own += [env * np.cos(wd * t), env * np.sin(wd * t)]
+        own = np.array(own) if own else np.zeros((0, t.size))
+        return shared.T, own.T
+
+    def solve(self, fn, zeta, *, full=False):
+        """Linear least squares for all outputs; returns the weighted residual vector.
+
+        The static and forced-response columns (``nuis``) do not depend on the poles and are
+        projected out once per record (an orthonormal basis ``Q``); the rest is solved through
+        the normal equations of the projected columns. With ``full`` also returns, per output,
+        the coefficients of the shared columns and per record the dynamic and nuisance parts.
+        """
+        blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
+        n_shared = blocks[0][0].shape[1]
+        n_own = [b[1].shape[1] for b in blocks]
+        n_cols = n_shared + sum(n_own)
+        proj = []
+        for (sh, own), rec in zip(blocks, self.records):
+            a = np.hstack([sh, own])
+            qn = rec["q_nuis"]
+            proj.append(a - qn @ (qn.T @ a))
+        gram = np.zeros((n_cols, n_cols))
+        col = n_shared
+        slices = []
+        for a, k in zip(proj, n_own):
+            idx = np.r_[0:n_shared, col : col + k]
+            gram[np.ix_(idx, idx)] += a.T @ a
+            slices.append(idx)
+            col += k
+        scale = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
+        gs = gram / np.outer(scale, scale)
+        gs[np.diag_indices_from(gs)] += 1e-12
+        resid_all, dyn_all = [], []
+        for k in range(len(self.outputs)):
+            rhs = np.zeros(n_cols)
+            for a, idx, rec in zip(proj, slices, self.records):
+                rhs[idx] += a.T @ rec["y_proj"][k]
+            c = np.linalg.solve(gs, rhs / scale) / scale
+            parts = []
+            for a, idx, rec in zip(proj, slices, self.records):
+                fit = a @ c[idx]
+                resid_all.append(self.out_weight[k] * (rec["y_proj"][k] - fit))
+                parts.append(c[idx])
+            dyn_all.append(parts)
+        resid = np.concatenate(resid_all)
+        if not full:
+            return resid
+        coefs = [parts[0][:n_shared] for parts in dyn_all]
+        preds = []
+        for k in range(len(self.outputs)):
+            per = []
+            for (sh, own), idx, rec, cc in zip(blocks, slices, self.records, dyn_all[k]):
+                dyn = np.hstack([sh, own]) @ cc
+                rest = rec["y"][k] - dyn
+                nuis = rec["q_nuis"] @ (rec["q_nuis"].T @ rest)
+                per.append((dyn, nuis))
+            preds.append(per)
+        return resid, coefs, preds
+
+    def sweep(self, fn, zeta, grid_hz, zeta0, *, output=None):
+        """Residual sum of squares after adding one mode ``(f, zeta0)`` for each ``f`` of a grid.
+
+        The current modes and the nuisance columns are projected out once; each candidate's
+        columns are orthogonalised against them, so a candidate costs one small projection.
+        """
+        x, _ = self.full_design(fn, zeta)
+        n_rows = x.shape[0]
+        qx = np.linalg.qr(x)[0] if x.shape[1] else np.zeros((n_rows, 0))
+        y = np.concatenate([r["y"] for r in self.records], axis=1) * self.out_weight[:, None]
+        if output is not None:
+            y = y[output : output + 1]
+        r0 = y - (y @ qx) @ qx.T
+        base = float(np.sum(r0**2))
+        out = np.empty(len(grid_hz))
+        for g, f0 in enumerate(grid_hz):
+            cols = []
+            row = 0
+            for i_rec, rec in enumerate(self.records):
+                forced, free = self.mode_columns(rec, f0, zeta0)
+                n = forced.shape[0]
+                c = np.zeros((n_rows, forced.shape[1] + 2 * len(self.records)))
+                c[row : row + n, : forced.shape[1]] = forced
+                j = forced.shape[1] + 2 * i_rec
+                c[row : row + n, j : j + 2] = free
+                cols.append(c)
+                row += n
+            c = np.sum(cols, axis=0)
+            c = c - qx @ (qx.T @ c)
+            gram = c.T @ c
+            gram[np.diag_indices_from(gram)] += 1e-12 * np.trace(gram) + 1e-300
+            proj = r0 @ c  # (n_out, k)
+            out[g] = base - float(np.sum(proj * np.linalg.solve(gram, proj.T).T))
+        return out
+
+    def full_design(self, fn, zeta):
+        """Design matrix of all records stacked, ``(n_total, K)``, and the nuisance column mask.
+
+        Columns: the shared ones (residues, residual), then per record its free-response and
+        nuisance columns (zero on the other records' rows).
+        """
+        blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
+        n_shared = blocks[0][0].shape[1]
+        own = [np.hstack([b[1], rec["nuis"]]) for b, rec in zip(blocks, self.records)]
+        cols = n_shared + sum(o.shape[1] for o in own)
+        n_total = sum(o.shape[0] for o in own)
+        x = np.zeros((n_total, cols))
+        nuis = np.zeros(cols, dtype=bool)
+        row, col = 0, n_shared
+        for b, o, rec in zip(blocks, own, self.records):
+            n = o.shape[0]
+            x[row : row + n, :n_shared] = b[0]
+            x[row : row + n, col : col + o.shape[1]] = o
+            nuis[col + b[1].shape[1] : col + o.shape[1]] = True
+            row += n
+            col += o.shape[1]
+        return x, nuis
+
+    def unpack_residues(self, coefs, n_modes):
+        a = np.zeros((n_modes, 3, 3))
+        r = np.zeros((3, 3))
+        ins = self.records[0]["inputs"]
+        for k, o in enumerate(self.outputs):
+            c = coefs[k]
+            for m in range(n_modes):
+                a[m, o, ins] = c[m * self.n_in : (m + 1) * self.n_in]
+            if self.residual:
+                r[o, ins] = c[n_modes * self.n_in : (n_modes + 1) * self.n_in]
+        return a, r
+
+
+def _prepare(signals, harmonics, inputs, outputs, derivative=0):
+    """Per record: background force ``p``, output ``y`` (the measured quantity of order
+    ``derivative``), the nuisance basis (trend and harmonics) and its orthonormal basis."""
+    recs = []
+    for s, h in zip(signals, harmonics):
+        fs = s.sample_rate_hz
+        n = s.n_samples
+        t = np.arange(n) / fs
+        f = s.force_N[inputs]
+        hz = h.freq_hz if h is not None else np.zeros(0)
+        p = f - fit_harmonic_signal(f, fs, hz, trend=True)
+        nuis = harmonic_basis(t, hz, trend=True)
+        q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
+        y = np.array(s.motion[outputs] if derivative else s.displacement_m[outputs])
+        recs.append({"p": p, "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t, "nuis": nuis, "q_nuis": q_nuis,
+                     "fs": fs, "outputs": list(outputs), "inputs": list(inputs), "step": s.quantisation_step_m,
+                     "derivative": derivative})
+    return recs
+
