@@ -85,3 +85,29 @@ def test_boundary_cuts_reduce_the_variance_as_brute_force_reweighting_says_and_s
     assert halves[0] != halves[1]
     with pytest.raises(ValueError, match="criterion"):
         suggest_cuts(lobes, 1, criterion="information")
+
+
+def test_boundary_cuts_judged_from_records_teach_less_and_sit_deeper():
+    """Outcomes detected from records have the detector's lagged, wider boundary: the best cut for
+    the boundary is then deeper (by about the lag: there the detection is a coin toss) and its
+    expected variance reduction smaller than that of a marked cut, and equal to brute-force
+    reweighting with the detector's outcome model."""
+    from scipy.special import expit
+
+    from planner.learn.likelihood import Likelihood
+
+    lobes, _ = _two_factor_lobes(np.random.default_rng(1))
+    like = Likelihood()
+    marked, share_m, _ = suggest_cuts(lobes, 1, criterion="boundary", likelihood=like, n_depth=80)
+    found, share_d, _ = suggest_cuts(lobes, 1, criterion="boundary", likelihood=like, n_depth=80, detected=True)
+    assert share_d[0] < share_m[0]
+    j = int(np.argmin(np.abs(lobes.rpm - found.spindle_rpm[0])))
+    log_lim = np.log(lobes.limits[:, j])
+    x = np.log(found.axial_depth_m[0]) - log_lim
+    q = like.mislabel + (1 - 2 * like.mislabel) * expit((x - like.detection_lag) / like.scale(width=like.detection_scale))
+    assert 0.3 < q.mean() < 0.7  # the detector's coin toss ...
+    assert np.median(x) > 0.5 * like.detection_lag  # ... above the median limit, by about the lag
+    log_all = np.log(lobes.limits)
+    v0 = np.sum(np.var(log_all, axis=0))
+    after = sum(wy.mean() * np.sum(wy @ log_all ** 2 / wy.sum() - (wy @ log_all / wy.sum()) ** 2) for wy in (q, 1 - q))
+    assert np.isclose(share_d[0], (v0 - after) / v0, rtol=1e-9)

@@ -162,8 +162,12 @@ def _cmd_learn(args) -> int:
     if args.suggest or args.plot:
         lobes = probability_lobes(post, setup, rpm_range, method=args.method)
     if args.suggest:
+        # the next cuts are assumed judged the way most of these were (marks, or detected from records)
+        marked = cuts.outcome >= 0
+        detected = 2 * int((cuts.detected & marked).sum()) > int(marked.sum())
         sugg, gain, incumbent = suggest_cuts(lobes, args.suggest, criterion=args.suggest_for,
-                                             likelihood=post.likelihood)
+                                             likelihood=post.likelihood, detected=detected)
+        payload["suggested_outcomes"] = "detected" if detected else "marked"
         fz = setup.cut.feed_per_tooth_m
         scale = setup.cut.radial_depth_m * fz * setup.tool.teeth / 60.0
         if args.suggest_for == "mrr":

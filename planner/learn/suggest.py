@@ -25,7 +25,9 @@ after the cut is ``E[L^2] - sum_y P(y) mean_y(L)^2``, so the score is computable
 candidate at once from two weighted sums over the samples. Greedy batch: after each pick the
 samples are reweighted by the pick's more probable outcome (the "believer" heuristic of
 Ginsbourger, Le Riche & Carraro 2010), so the next pick is scored on what the first would leave
-unknown.
+unknown. When the test cuts will be judged from records (``detected``), their outcome model is the
+detector's lagged, wider boundary (:mod:`.likelihood`): such a cut teaches less, and most where
+the detector's chance of calling chatter is near one half, above the limit by the lag.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ CRITERIA = ("mrr", "boundary")
 
 def suggest_cuts(lobes: ProbabilityLobes, n: int, *, criterion: str = "mrr", likelihood: Likelihood | None = None,
                  depth_range_m=None, n_depth: int = 60, confidence: float = 0.95,
-                 min_speed_gap: float = 0.03) -> tuple[CutTable, np.ndarray, float]:
+                 min_speed_gap: float = 0.03, detected: bool = False) -> tuple[CutTable, np.ndarray, float]:
     """The ``n`` test cuts that teach most by ``criterion``.
 
     Parameters
@@ -58,6 +60,9 @@ def suggest_cuts(lobes: ProbabilityLobes, n: int, *, criterion: str = "mrr", lik
         The outcome model of the posterior (``boundary``; default :class:`Likelihood()`).
     depth_range_m : (float, float), optional
         Depths considered (default: from half the lowest 95 % depth to twice the highest 5 % one).
+    detected : bool
+        ``boundary``: the suggested cuts' outcomes will be detected from records, not marked
+        (their outcome model is the detector's; ``mrr`` scores the cut's stability itself).
 
     Returns
     -------
@@ -86,7 +91,7 @@ def suggest_cuts(lobes: ProbabilityLobes, n: int, *, criterion: str = "mrr", lik
     if criterion == "mrr":
         picks, scores = _greedy_improvement(p * np.maximum(0.0, mrr - incumbent), lobes.rpm, n, min_speed_gap)
     else:
-        picks, scores = _greedy_boundary(lobes, depth, n, likelihood or Likelihood(), min_speed_gap)
+        picks, scores = _greedy_boundary(lobes, depth, n, likelihood or Likelihood(), min_speed_gap, detected)
     rpm = np.array([lobes.rpm[j] for _, j in picks], dtype=float)
     ap = np.array([depth[i] for i, _ in picks], dtype=float)
     k = rpm.size
@@ -115,13 +120,14 @@ def _greedy_improvement(ei: np.ndarray, rpm: np.ndarray, n: int, gap: float):
     return picks, gains
 
 
-def _greedy_boundary(lobes: ProbabilityLobes, depth: np.ndarray, n: int, likelihood: Likelihood, gap: float):
+def _greedy_boundary(lobes: ProbabilityLobes, depth: np.ndarray, n: int, likelihood: Likelihood, gap: float,
+                     detected: bool = False):
     """Greedy expected reduction of the summed variance of the log limit (module notes)."""
     log_lim = np.log(lobes.limits)  # (S, R)
     s_count = log_lim.shape[0]
     eps = float(likelihood.mislabel)
-    # P(mark 'chatter' | sample) at every candidate (depth i, speed j): (S, D * R)
-    x = (np.log(depth)[None, :, None] - log_lim[:, None, :]) / float(likelihood.scale())
+    # P(outcome 'chatter' | sample) at every candidate (depth i, speed j): (S, D * R)
+    x = likelihood.mark_logit(np.log(depth)[None, :, None] - log_lim[:, None, :], bool(detected))
     q = (eps + (1.0 - 2.0 * eps) * expit(x)).reshape(s_count, -1)
     sq = log_lim**2
     w = np.full(s_count, 1.0 / s_count)
