@@ -14,7 +14,7 @@ from .likelihood import CHATTER, STABLE
 from .outcomes_io import CutTable, record_outcome
 from .tables import reference_limits
 
-__all__ = ["Problem", "tool_problem", "true_limits", "random_cuts", "label", "record_labels"]
+__all__ = ["Problem", "tool_problem", "two_mode_problem", "true_limits", "random_cuts", "label", "record_labels"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,26 @@ def tool_problem(*, u_prior=(0.0, 0.0, 0.0, 0.0, 0.0), fn_hz=900.0, zeta=0.03, s
     setup = Setup(tool=tool, cut=cut, material=Material("synthetic", prior_coef),
                   limits=Limits(spindle_rpm=tuple(rpm_range)))
     return Problem(setup=setup, truth=truth, truth_coefficients=coef, prior=prior)
+
+
+def two_mode_problem(*, u_prior=(0.0,) * 8, fn_hz=(900.0, 1250.0), zeta=(0.03, 0.03),
+                     stiffness_N_m=(1.5e7, 2.0e7), directions=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+                     ktc=7.0e8, krc=2.1e8, rpm_range=(6000.0, 24000.0)) -> Problem:
+    """A two-mode tool (by default one mode along the feed, one along the cut normal, as in the
+    two-mode study of Cornelius et al.): the truth, and a prior whose per-mode log-multipliers
+    (frequency[0, 1], stiffness[0, 1], damping[0, 1], Ktc, Krc) are ``-u_prior`` away from it:
+    ``learn`` moves both modes by one factor per group, so modes off apart are outside its model
+    (``benchmarks/bench_learn_modes.py``)."""
+    base = tool_problem(fn_hz=fn_hz[0], zeta=zeta[0], stiffness_N_m=stiffness_N_m[0], ktc=ktc, krc=krc,
+                        rpm_range=rpm_range)
+    truth = ModalModel(list(fn_hz), list(zeta), list(stiffness_N_m), [list(d) for d in directions])
+    u = np.asarray(u_prior, dtype=float)
+    prior = replace(truth, natural_frequency_hz=truth.natural_frequency_hz * np.exp(u[0:2]),
+                    stiffness_N_m=truth.stiffness_N_m * np.exp(u[2:4]),
+                    damping_ratio=truth.damping_ratio * np.exp(u[4:6]))
+    setup = replace(base.setup, material=Material("synthetic", CuttingCoefficients(ktc * np.exp(u[6]),
+                                                                                    krc * np.exp(u[7]))))
+    return Problem(setup=setup, truth=truth, truth_coefficients=base.truth_coefficients, prior=prior)
 
 
 def true_limits(problem: Problem, rpm, radial_depth_m, down, *, converged: bool = True) -> np.ndarray:

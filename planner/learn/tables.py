@@ -34,7 +34,7 @@ from oma.modal import ModalModel
 
 from ..workers import default_workers, process_map
 
-__all__ = ["Grid", "LimitTable", "build_table", "direct_log_limits", "reference_limits", "MAX_DEPTH_M"]
+__all__ = ["Grid", "LimitTable", "build_table", "direct_log_limits", "mode_shares", "reference_limits", "MAX_DEPTH_M"]
 
 MAX_DEPTH_M = 1.0  # a limit above this (or none) counts as this: no test cut is that deep
 SDM_BELOW_IMMERSION = 0.2  # ae/D below which the SDM is used (as `plan --method auto`)
@@ -324,3 +324,27 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     methods = tuple(method_for(tool, a, method) for a in ae)
     return LimitTable(grid=grid, engagements=tuple(engagements), lattice=tuple(lattices), values=tuple(tables),
                       group=group, rpm=rpm, methods=methods)
+
+
+def mode_shares(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients, rpm, radial_depth_m,
+                down, *, method: str = "sdm", sdm_steps=None, step: float = 0.1, workers: int | None = None) -> np.ndarray:
+    """How much each mode's stiffness sets the limit of each cut: ``d log b / d log k_r``, shape
+    (n_cuts, n_modes), by central differences of direct limits (``step`` in log stiffness).
+
+    The limit scales exactly with a common stiffness factor (module notes), so by Euler's theorem
+    on homogeneous functions the shares of a cut sum to one: they say which modes the cut's
+    outcome is evidence about. A share can be negative: a mode above the chatter frequency adds a
+    positive real part to the receptance there, and making it stiffer can lower the limit. A cut
+    whose limit is capped (``MAX_DEPTH_M``: no limit) gets NaN.
+    """
+    def log_limits(m):
+        return direct_log_limits(m, tool, base_cut, coefficients, rpm, radial_depth_m, down, np.zeros((1, 5)),
+                                 method=method, sdm_steps=sdm_steps, workers=workers)[0]
+
+    base = log_limits(model)
+    out = np.empty((base.size, model.n_modes))
+    for r in range(model.n_modes):
+        up, dn = (log_limits(replace(model, stiffness_N_m=model.stiffness_N_m * np.exp(s * step * (np.arange(
+            model.n_modes) == r)))) for s in (1.0, -1.0))
+        out[:, r] = (up - dn) / (2.0 * step)
+    return np.where((base < np.log(MAX_DEPTH_M) - 1e-9)[:, None], out, np.nan)
