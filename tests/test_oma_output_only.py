@@ -179,6 +179,30 @@ def test_a_line_inside_a_modes_band_does_not_carry_its_damping_error_into_the_st
     assert errors[0] < -0.05 and abs(errors[scaling.EFFECTIVE_VARIANCE_ITERATIONS]) < 0.01, errors
 
 
+def test_the_z_mode_beside_x_is_not_scalable_and_says_so_with_an_unbounded_sd():
+    """Exact lines (720 rpm, 2 teeth), every mode in its true direction: X and Y are scaled to a
+    few % even with 0.01 rad direction errors, but Z (10.0 Hz beside X's 10.5 Hz, an axial force a
+    sixth of the feed force) is uncertain by more than 20 % from those 0.01 rad alone: X's response
+    leaks into the Z channel as much as Z's own. With 0.3 rad on Z, draws leave it unscaled and its
+    sd is infinite (the JSON's null), never a finite number standing in for infinity."""
+    tool, mat = paper_like_tool(), paper_like_material()
+    orders = np.array([2, 4, 6])
+    force = tooth_force_harmonics(tool, paper_like_cut(720.0), mat.cutting_coefficients, orders)
+    lines = orders * 12.0
+    x = np.einsum("ijh,jh->ih", TRUTH.receptance(lines), force) * np.exp(1j * orders * 1.1)[None, :]
+    noise = 1e-3 * np.abs(x).max() * np.ones(x.shape)
+    for se_z in (0.01, 0.3):
+        s = scale_modes(TRUTH.natural_frequency_hz, TRUTH.damping_ratio, TRUTH.directions, [x], [noise], [force],
+                        [lines], [orders], freq_se_hz=0.003 * TRUTH.natural_frequency_hz,
+                        damping_se=0.1 * TRUTH.damping_ratio, direction_se_rad=np.array([0.01, 0.01, se_z]),
+                        coefficient_relative_sd=0.1)
+        assert np.all(s.statistical_relative_sd[:2] < 0.05) and not s.too_far[:2].any()
+        assert s.statistical_relative_sd[2] > 0.2 and s.too_far[2]
+        if se_z > 0.1:
+            assert np.isinf(s.statistical_relative_sd[2]) and np.isinf(s.relative_sd[2])
+            assert s.to_dict()[2]["relative_sd"] is None and s.to_dict()[2]["harmonics_too_far"]
+
+
 def test_identify_output_only_scales_x_and_y_and_flags_what_it_cannot():
     rec = _record(4)
     res = identify_output_only([rec])

@@ -286,7 +286,9 @@ def scale_modes(freq_hz, damping_ratio, directions, response, noise, force, line
             # a draw that leaves a mode unscaled (c = 0) counts as an unbounded error
             rel_mc = np.where(np.mean(np.isfinite(logs), axis=0) < 0.9, np.inf, rel_mc)
     with np.errstate(over="ignore", invalid="ignore"):
-        stat = np.hypot(np.nan_to_num(rel_ls, nan=np.inf), np.nan_to_num(rel_mc, nan=np.inf))
+        # an unbounded error stays infinite (nan_to_num's default turns inf into the largest float,
+        # which then read as a finite, astronomically large sd in the JSON)
+        stat = np.hypot(*(np.nan_to_num(r, nan=np.inf, posinf=np.inf) for r in (rel_ls, rel_mc)))
         stat = np.where(np.isfinite(stiffness), np.maximum(stat, STATISTICAL_SD_FLOOR), np.inf)
         total = np.hypot(stat, float(coefficient_relative_sd))
     from scipy import stats
