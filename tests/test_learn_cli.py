@@ -136,7 +136,8 @@ def test_prior_sd_option(files, capsys, tmp_path):
 
 
 @pytest.mark.parametrize("option,value", [("--mislabel", "0.5"), ("--mislabel", "-0.1"), ("--mislabel-sd", "-1"),
-                                          ("--detection-lag", "-0.1"), ("--detection-scale", "0")])
+                                          ("--detection-lag", "-0.1"), ("--detection-scale", "0"),
+                                          ("--mode-correlation", "1.2"), ("--mode-correlation", "-0.5")])
 def test_mislabel_options(files, capsys, tmp_path, option, value):
     d, _ = files
     code, _, err = _run(capsys, ["learn", str(d / "setup.yaml"), "--model", str(d / "prior.yaml"), "--cuts",

@@ -80,3 +80,29 @@ def test_lobes_with_a_posterior(case, capsys):
     assert code == 0
     q = out["probability_lobes"]["depth_at_probability_m"]
     assert np.all(np.array(q["0.95"]) <= np.array(q["0.5"])) and np.all(np.array(q["0.5"]) <= np.array(q["0.05"]))
+
+
+def test_a_posterior_of_several_modes_keeps_its_mode_spread_through_its_file(tmp_path):
+    """The modes' own deviations (``mode_spread``, learn's ``mode_correlation`` below 1) are written
+    beside the samples and read back; each mode's reported sd includes them; a malformed one is a
+    one-line model error."""
+    from oma.errors import ModelError
+    from planner.learn.synthetic import two_mode_problem
+
+    pb = two_mode_problem()
+    rng = np.random.default_rng(0)
+    sd = PriorSD().log_sds()
+    post = Posterior(reference=pb.prior, coefficients=pb.setup.material.cutting_coefficients, prior_log_sd=sd,
+                     samples=0.1 * rng.standard_normal((40, 5)), mode_spread=np.array([0.05, 0.2, 0.3]))
+    write_posterior_model(post, tmp_path / "p.yaml")
+    back = read_posterior(tmp_path / "p.yaml")
+    np.testing.assert_allclose(back.mode_spread, [0.05, 0.2, 0.3])
+    together = replace(post, mode_spread=np.zeros(3))
+    for r in (0, 1):
+        key = f"stiffness_N_m[{r}]"
+        assert post.parameters()[key]["sd"] > 1.5 * together.parameters()[key]["sd"]
+    text = (tmp_path / "p.yaml").read_text()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace("mode_spread:", "mode_spread: [1, 2]\n  old_mode_spread:"))
+    with pytest.raises(ModelError, match="mode_spread"):
+        read_posterior(bad)

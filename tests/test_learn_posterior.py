@@ -510,3 +510,39 @@ def test_a_posterior_that_predicts_worse_than_its_prior_says_so(problem, monkeyp
     assert res.accuracy_after < res.accuracy_before
     msg = [w for w in res.warnings if "worse than the prior" in w]
     assert len(msg) == 1 and f"{res.accuracy_after:.2f} against {res.accuracy_before:.2f}" in msg[0]
+
+
+def test_modes_own_deviations_are_integrated_out_below_full_correlation(problem):
+    """``mode_correlation`` 0.5 on a two-mode prior whose second mode is 1000x stiffer (no share in
+    any limit): the shared stiffness factor gets half the prior variance, each mode's own deviation
+    the other half (log-sd 0.208 for a 30 % prior), and at the checked samples the modes moved
+    apart by draws of those deviations change every cut's log limit by the first mode's own draw:
+    the widening is the same at every cut and its RMS is the deviations' sd (12 draws: within 40 %).
+    The reported per-mode prior sd is the user's (the marginal), the posterior sd includes the
+    deviation, and the JSON states it."""
+    two = ModalModel([900.0, 1400.0], [0.03, 0.03], [1.5e7, 1.5e10], [[0.6, 0.8, 0.0], [0.6, 0.8, 0.0]])
+    setup = problem.setup
+    rng = np.random.default_rng(4)
+    cuts = random_cuts(problem, 10, rng, immersions=(0.5, 1.0), depth_range=(0.5e-3, 20e-3))
+    cuts = label(cuts, np.full(cuts.n_cuts, 4e-3), rng)
+    sd = PriorSD().log_sds()
+    grid = Grid.around(0.0, 0.0, 0.0)
+    table = build_table(two, setup.tool, setup.cut, setup.material.cutting_coefficients, cuts.spindle_rpm,
+                        cuts.radial_depth_m, cuts.down, grid, method="zoa", workers=1)
+    res = learn(setup, two, cuts, free=("stiffness",), table=table, n_particles=300, seed=0, validate=12,
+                method="zoa", mode_correlation=0.5)
+    tau = np.sqrt(0.5) * sd[1]
+    assert res.posterior.prior_log_sd[1] == pytest.approx(np.sqrt(0.5) * sd[1])
+    np.testing.assert_allclose(res.posterior.mode_spread, [0.0, tau, 0.0])
+    e = res.mode_spread_error
+    assert e.shape == (cuts.n_cuts,) and np.std(e) < 0.05 * np.mean(e) and 0.6 * tau < np.mean(e) < 1.4 * tau
+    assert np.all(res.model_error >= e - 1e-12)
+    par = res.to_dict()["parameters"]
+    for r in (0, 1):
+        k = par[f"stiffness_N_m[{r}]"]
+        cv = np.sqrt(np.expm1(sd[1] ** 2))
+        assert k["prior_sd"] == pytest.approx(two.stiffness_N_m[r] * np.exp(sd[1] ** 2 / 2) * cv)
+    assert res.to_dict()["mode_spread"]["correlation"] == 0.5
+    assert any("integrated out" in w for w in res.warnings)
+    with pytest.raises(ValueError, match="mode_correlation"):
+        learn(setup, two, cuts, table=table, mode_correlation=1.5)

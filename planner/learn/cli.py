@@ -63,6 +63,10 @@ def add_parsers(sub) -> None:
                         "with --detection-scale 0.03 treats them as marks)")
     p.add_argument("--detection-scale", type=float, default=None, metavar="LOG",
                    help="width (log depth ratio) of the detected outcomes' soft boundary (default 0.11)")
+    p.add_argument("--mode-correlation", type=float, default=1.0, metavar="RHO",
+                   help="several modes: correlation of the modes' prior factors within a group (1, the default: "
+                        "one factor moves them all; below 1 each mode's own deviation is integrated out, "
+                        "widening the boundary and each mode's sd)")
     p.add_argument("--samples", type=int, default=2000, help="posterior particles")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rpm", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
@@ -136,6 +140,8 @@ def _cmd_learn(args) -> int:
     if args.mislabel_sd is not None and not args.mislabel_sd >= 0:
         raise UsageError("--mislabel-sd", "a log-odds sd >= 0", str(args.mislabel_sd))
     likelihood = _likelihood(args)
+    if not 0.0 <= args.mode_correlation <= 1.0:
+        raise UsageError("--mode-correlation", "a correlation in [0, 1]", str(args.mode_correlation))
     if args.samples < 100:
         raise UsageError("--samples", "at least 100", str(args.samples))
     if args.suggest is not None and not 1 <= args.suggest <= 100:
@@ -150,7 +156,7 @@ def _cmd_learn(args) -> int:
     rpm_range = _speed_range(args, setup, cuts)
 
     result = learn(setup, prior, cuts, prior_sd=prior_sd, n_particles=args.samples, seed=args.seed,
-                   method=args.method, likelihood=likelihood)
+                   method=args.method, likelihood=likelihood, mode_correlation=args.mode_correlation)
     post = result.posterior
     payload = result.to_dict()
     payload["predictions"] = None

@@ -177,6 +177,10 @@ class Posterior:
     mislabel_samples : ndarray, shape (n_samples,)
         The mislabel rate of each sample (learned with the rest, :mod:`.likelihood`); may be
         empty when read from file (predictions do not use it).
+    mode_spread : ndarray, shape (3,)
+        Several modes with a ``mode_correlation`` below one (``learn``): the log-sd of each
+        mode's own deviation from the shared frequency, stiffness and damping factors, which the
+        cuts cannot teach and ``learn`` integrates out (zeros: the modes move together).
     """
 
     reference: ModalModel
@@ -187,6 +191,7 @@ class Posterior:
     likelihood: Likelihood = Likelihood()
     method: str = "sdm"
     mislabel_samples: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mode_spread: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def map_index(self) -> int:
@@ -227,7 +232,7 @@ class Posterior:
                   ("damping_ratio", ref.damping_ratio, 2)]
         for name, values, i in groups:
             for r, v in enumerate(values):
-                out[f"{name}[{r}]"] = self._summary(float(v), i)
+                out[f"{name}[{r}]"] = self._summary(float(v), i, mode=r)
         out["Ktc_N_m2"] = self._summary(self.coefficients.Ktc_N_m2, 3)
         out["Krc_N_m2"] = self._summary(self.coefficients.Krc_N_m2, 4)
         if self.mislabel_samples.size:
@@ -239,10 +244,14 @@ class Posterior:
                                     "sd_ratio": float(e.std() / s0) if s0 > 0 else 0.0}
         return out
 
-    def _summary(self, prior_value: float, i: int) -> dict:
+    def _summary(self, prior_value: float, i: int, mode: int = 0) -> dict:
         u = self.samples[:, i]
-        phys = prior_value * np.exp(u)
         sd0 = float(self.prior_log_sd[i])
+        spread = float(self.mode_spread[i]) if i < 3 and self.reference.n_modes > 1 else 0.0
+        if spread > 0:  # the mode's own deviation, not learned: its prior (fixed draws per mode)
+            u = u + spread * np.random.default_rng([i, mode]).standard_normal(u.size)
+            sd0 = float(np.hypot(sd0, spread))
+        phys = prior_value * np.exp(u)
         cv0 = float(np.sqrt(np.expm1(sd0**2)))
         return {"mean": float(phys.mean()), "sd": float(phys.std()), "prior": float(prior_value),
                 "prior_sd": float(prior_value * np.exp(sd0**2 / 2) * cv0), "fixed": sd0 == 0,

@@ -15,6 +15,8 @@ of modal models reads it (they ignore ``x_`` keys). Beside it::
       prior_log_sd: [...]            # 0: a group held fixed
       likelihood: {mislabel: 0.05, boundary_scale: 0.03, ...}
       method: sdm                    # how the limits were computed (sdm, zoa, auto)
+      mode_spread: [0, 0, 0]         # several modes: log-sd of each mode's own deviation from the
+                                     # shared frequency, stiffness, damping factors (optional)
       map_coefficients: {Ktc_N_m2: ..., Krc_N_m2: ...}
       samples: [[u_f, u_k, u_zeta, u_Ktc, u_Krc], ...]   # log-multipliers, equally weighted,
                                                           # the MAP sample first
@@ -57,7 +59,7 @@ def posterior_to_dict(posterior: Posterior, *, max_samples: int = 500) -> dict:
                       "damping_ratio": ref.damping_ratio, "Ktc_N_m2": posterior.coefficients.Ktc_N_m2,
                       "Krc_N_m2": posterior.coefficients.Krc_N_m2},
         "prior_log_sd": posterior.prior_log_sd, "likelihood": posterior.likelihood.to_dict(),
-        "method": posterior.method,
+        "method": posterior.method, "mode_spread": posterior.mode_spread,
         "map_coefficients": {"Ktc_N_m2": coef.Ktc_N_m2, "Krc_N_m2": coef.Krc_N_m2},
         "samples": post.samples,
     }
@@ -115,7 +117,13 @@ def read_posterior(path) -> Posterior | None:
     method = node.get("method", "sdm")
     if method not in ("sdm", "zoa", "auto"):
         raise ModelError(path, "x_posterior.method", "sdm, zoa or auto", repr(method))
+    spread = np.zeros(3)
+    if node.get("mode_spread") is not None:
+        spread = _array(node, "mode_spread", path)
+        if spread.shape != (3,) or np.any(spread < 0):
+            raise ModelError(path, "x_posterior.mode_spread", "3 log-sds >= 0 (frequency, stiffness, damping)",
+                             repr(node.get("mode_spread"))[:60])
     mark = np.full(samples.shape[0], -1.0)
     mark[0] = 0.0  # the writer puts the MAP sample first
     return Posterior(reference=reference, coefficients=coef, prior_log_sd=sd, samples=samples,
-                     log_posterior=mark, likelihood=likelihood, method=method)
+                     log_posterior=mark, likelihood=likelihood, method=method, mode_spread=spread)

@@ -14,7 +14,8 @@ from oma.modal import ModalModel
 from .likelihood import CHATTER, STABLE, Likelihood
 from .outcomes_io import CutTable
 from .posterior import PARAMETERS, Posterior, PriorSD, smc
-from .tables import COARSE_NODES, FINE_NODES, Grid, LimitTable, build_table, direct_log_limits, mode_shares
+from .tables import (COARSE_NODES, FINE_NODES, Grid, LimitTable, build_table, direct_log_limits, mode_shares,
+                     scaled_model)
 
 __all__ = ["LearnResult", "learn", "table_for", "loo_probability_stable", "mislabel_probability", "VALIDATION_SAMPLES"]
 
@@ -51,6 +52,10 @@ class LearnResult:
     #: Several modes: ``d log b / d log k_r`` of each cut at the MAP (n_cuts, n_modes; they sum to
     #: one, :func:`.tables.mode_shares`): which mode each outcome is evidence about; else empty.
     mode_share: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    #: Several modes, ``mode_correlation < 1``: each cut's RMS log-limit change when the modes move
+    #: apart by their own deviations (the prior's), measured at the checked samples; else empty.
+    mode_spread_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    mode_correlation: float = 1.0
 
     def suspect_labels(self, threshold: float = SUSPECT_LABEL) -> list[dict]:
         """Marks that are more likely wrong than right under the posterior (rows from 0)."""
@@ -74,6 +79,11 @@ class LearnResult:
                 "suspect_labels": self.suspect_labels(),
                 "mode_shares": (np.nanmedian(self.mode_share, axis=0).tolist()
                                 if self.mode_share.size and np.isfinite(self.mode_share).any() else None),
+                "mode_spread": ({"correlation": self.mode_correlation,
+                                 "log_sd": self.posterior.mode_spread.tolist(),
+                                 "limit_error": {"median": float(np.median(self.mode_spread_error)),
+                                                 "max": float(np.max(self.mode_spread_error))}}
+                                if self.mode_spread_error.size else None),
                 "table_error": {"median": float(np.median(self.model_error)) if self.model_error.size else 0.0,
                                 "max": float(np.max(self.model_error, initial=0.0))}}
 
@@ -170,7 +180,7 @@ def loo_probability_stable(log_terms: np.ndarray, p_stable_each: np.ndarray) -> 
 def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = PriorSD(),
           likelihood: Likelihood = Likelihood(), n_particles: int = 2000, seed: int = 0,
           free: tuple[str, ...] | None = None, table: LimitTable | None = None,
-          method: str = "sdm", validate: int = VALIDATION_SAMPLES) -> LearnResult:
+          method: str = "sdm", validate: int = VALIDATION_SAMPLES, mode_correlation: float = 1.0) -> LearnResult:
     """The posterior of the prior's modes and cutting coefficients given test-cut outcomes.
 
     Parameters
@@ -198,12 +208,26 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         posterior is sampled again with it, so that the posterior does not fit the table's own
         error as if it were the tool's (on the benchmark the tables are off by a median ~8 % per
         cut where the posterior lies, against a 3 % boundary: docs/learn.md).
+    mode_correlation : float
+        Several modes: the correlation of the modes' prior log factors within a group (1: they move
+        together, one factor per group, the model's exact case). Below 1 each mode's factor is the
+        shared one plus its own deviation, with ``1 - mode_correlation`` of the group's prior
+        variance; the shared factors are learned (prior variance ``mode_correlation`` of it) and
+        the deviations, which no table resolves, are integrated out: at the checked samples
+        (``validate``) the modes are moved apart by draws of them, solved directly, and each cut's
+        RMS log-limit change widens its boundary like the table's error (docs/learn.md).
     """
     t0 = time.perf_counter()
     coef: CuttingCoefficients = setup.material.cutting_coefficients
     sd = prior_sd.log_sds()
     if free is not None:
         sd = np.where([p in free for p in PARAMETERS], sd, 0.0)
+    if not 0.0 <= mode_correlation <= 1.0:
+        raise ValueError(f"mode_correlation must be in [0, 1], found {mode_correlation}")
+    spread = np.zeros(3)
+    if prior.n_modes > 1 and mode_correlation < 1.0:
+        spread = np.sqrt(1.0 - mode_correlation) * sd[:3]
+        sd = np.r_[np.sqrt(mode_correlation) * sd[:3], sd[3:]]
     active = np.flatnonzero(sd > 0)
     log_a = np.log(cuts.axial_depth_m)
     labelled = cuts.outcome >= 0
@@ -279,14 +303,25 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         runs = sample(table)
     t2 = time.perf_counter()
     model_error = np.zeros(cuts.n_cuts)
-    if validate > 0 and active.size:
+    spread_error = np.zeros(0)
+    if validate > 0 and (active.size or spread.any()):
         # the table against direct limits where the posterior lies; its error widens each cut's
         # boundary, and the posterior is sampled again
         u_all = pooled(runs)
         u_v = u_all[rng.choice(u_all.shape[0], min(int(validate), u_all.shape[0]), replace=False)]
-        direct = direct_log_limits(prior, setup.tool, setup.cut, coef, cuts.spindle_rpm, cuts.radial_depth_m,
-                                   cuts.down, u_v, method=method, sdm_steps=table.grid.sdm_steps)
+        args = (setup.tool, setup.cut, coef, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down)
+        direct = direct_log_limits(prior, *args, u_v, method=method, sdm_steps=table.grid.sdm_steps)
         model_error = np.sqrt(np.mean((table.log_limit(*u_v.T) - direct) ** 2, axis=0))
+        if spread.any():
+            # the modes' own deviations integrated out: the same samples with the modes moved apart
+            # by draws of them (the marginal likelihood of a cut, to first order a boundary widened
+            # by the spread they give its log limit)
+            dev = rng.standard_normal((u_v.shape[0], 3, prior.n_modes)) * spread[None, :, None]
+            apart = np.array([direct_log_limits(scaled_model(prior, log_f=d[0], log_k=d[1], log_zeta=d[2]), *args,
+                                                u[None, :], method=method, sdm_steps=table.grid.sdm_steps)[0]
+                              for d, u in zip(dev, u_v)])
+            spread_error = np.sqrt(np.mean((apart - direct) ** 2, axis=0))
+            model_error = np.hypot(model_error, spread_error)
         runs = sample(table, model_error)
     t3 = time.perf_counter()
     likelihood = replace(likelihood, model_error=float(np.sqrt(np.mean(model_error**2))))
@@ -301,7 +336,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         parts.append((full(r.samples), rate(r.samples, lk), tt_k, lb_k, tt_k.sum(axis=1) + log_prior))
     components = tuple(Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u_k,
                                  log_posterior=lp_k, likelihood=replace(lk, model_error=likelihood.model_error),
-                                 method=method, mislabel_samples=eps_k)
+                                 method=method, mislabel_samples=eps_k, mode_spread=spread)
                        for lk, (u_k, eps_k, _, _, lp_k) in zip(models, parts))
     counts = np.floor(model_weight * n_particles).astype(int)
     counts[np.argmax(model_weight)] += n_particles - counts.sum()
@@ -310,7 +345,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     u, eps, tt, lb, lp = (np.concatenate([p[i][k] for p, k in zip(parts, pick)]) for i in range(5))
     p_each = 1.0 - likelihood.p_chatter(log_a[None, :] - lb, model_error=model_error)
     post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u, log_posterior=lp,
-                     likelihood=likelihood, method=method, mislabel_samples=eps)
+                     likelihood=likelihood, method=method, mislabel_samples=eps, mode_spread=spread)
     # a mark is wrong against what its source would say (a detected one: the lagged detection)
     p_wrong = mislabel_probability(1.0 - likelihood.p_mark_chatter(log_a[None, :] - lb, cuts.detected,
                                                                    model_error=model_error), eps, cuts)
@@ -329,7 +364,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         map_model, map_coef = post.map_model()
         by_mode = mode_shares(map_model, setup.tool, setup.cut, map_coef, cuts.spindle_rpm, cuts.radial_depth_m,
                             cuts.down, method=method, sdm_steps=table.grid.sdm_steps)
-    if prior.n_modes > 1 and np.any(sd[:3] > 0):
+    if prior.n_modes > 1 and (np.any(sd[:3] > 0) or spread.any()):
         told = ""
         if np.isfinite(by_mode).any():
             med = np.nanmedian(by_mode, axis=0)
@@ -337,9 +372,16 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                     "d log limit / d log k) " + ", ".join(f"mode {r}: {x:.2f}" for r, x in enumerate(med))
                     + ": the factors learned describe the modes with the large shares; the others move with "
                     "them untested.")
-        warnings.append(f"the prior has {prior.n_modes} modes and one factor per group (frequency, stiffness, "
-                        "damping) moves them all together: modes that are off in different directions cannot be "
-                        "told apart (a posterior per mode is not implemented)." + told)
+        if spread.any():
+            warnings.append(f"the prior has {prior.n_modes} modes: one factor per group (frequency, stiffness, "
+                            "damping) is learned for all of them, and each mode's own deviation from it (correlation "
+                            f"{mode_correlation:g}) is not learned but integrated out: it widens every cut's boundary "
+                            "and each mode's posterior sd (a posterior per mode is not implemented)." + told)
+        else:
+            warnings.append(f"the prior has {prior.n_modes} modes and one factor per group (frequency, stiffness, "
+                            "damping) moves them all together: modes that are off in different directions cannot be "
+                            "told apart (a posterior per mode is not implemented; --mode-correlation below 1 "
+                            "integrates their own deviations out)." + told)
     for name in post.unpinned():
         warnings.append(f"the cuts do not pin down {name}: its posterior sd is still above 80 % of the prior's")
     acc_min = min((min(r.acceptance) for r in runs if r.acceptance), default=1.0)
@@ -406,4 +448,4 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                        model_error=model_error, mislabel_probability=p_wrong,
                        components=components if len(components) > 1 else (),
                        model_probability=tuple(float(w) for w in model_weight) if len(components) > 1 else (),
-                       mode_share=by_mode)
+                       mode_share=by_mode, mode_spread_error=spread_error, mode_correlation=float(mode_correlation))
