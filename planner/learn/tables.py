@@ -332,8 +332,8 @@ def mode_shares(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     (n_cuts, n_modes), by central differences of direct limits (``step`` in log stiffness).
 
     The limit scales exactly with a common stiffness factor (module notes), so by Euler's theorem
-    on homogeneous functions the shares of a cut sum to one: they say which modes the cut's
-    outcome is evidence about. A share can be negative: a mode above the chatter frequency adds a
+    on homogeneous functions the shares of a cut sum to one (less with a residual compliance, which
+    no modal stiffness scales): they say which modes the cut's outcome is evidence about. A share can be negative: a mode above the chatter frequency adds a
     positive real part to the receptance there, and making it stiffer can lower the limit. A cut
     whose limit is capped (``MAX_DEPTH_M``: no limit) gets NaN.
     """
@@ -344,7 +344,7 @@ def mode_shares(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     base = log_limits(model)
     out = np.empty((base.size, model.n_modes))
     for r in range(model.n_modes):
-        up, dn = (log_limits(replace(model, stiffness_N_m=model.stiffness_N_m * np.exp(s * step * (np.arange(
-            model.n_modes) == r)))) for s in (1.0, -1.0))
+        bump = step * (np.arange(model.n_modes) == r)
+        up, dn = (log_limits(replace(model, stiffness_N_m=model.stiffness_N_m * np.exp(s * bump))) for s in (1, -1))
         out[:, r] = (up - dn) / (2.0 * step)
     return np.where((base < np.log(MAX_DEPTH_M) - 1e-9)[:, None], out, np.nan)
