@@ -359,12 +359,14 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     p_loo = loo_probability_stable(tt, p_each)
     warnings = []
     by_mode = np.zeros((0, 0))
+    # several modes and something about them learned or integrated out: one factor per group is a restriction
+    restricted = prior.n_modes > 1 and (np.any(sd[:3] > 0) or spread.any())
     if prior.n_modes > 1:
         # which mode each cut's outcome is evidence about, at the MAP (shares of d log b / d log k)
         map_model, map_coef = post.map_model()
         by_mode = mode_shares(map_model, setup.tool, setup.cut, map_coef, cuts.spindle_rpm, cuts.radial_depth_m,
                             cuts.down, method=method, sdm_steps=table.grid.sdm_steps)
-    if prior.n_modes > 1 and (np.any(sd[:3] > 0) or spread.any()):
+    if restricted:
         told = ""
         if np.isfinite(by_mode).any():
             med = np.nanmedian(by_mode, axis=0)
@@ -402,7 +404,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     # two-mode tools, bench_learn_modes.py: one cut worse where the held-out accuracy rose by 0.13)
     if np.isfinite(acc_a) and np.isfinite(acc_b) and acc_a < acc_b - 1.5 / max(n_marks, 1):
         why = ("its modes are off from the prior in different directions (one factor per group moves them all), "
-               if prior.n_modes > 1 and np.any(sd[:3] > 0) else "")
+               if restricted else "")
         warnings.append(f"the posterior predicts the cuts worse than the prior did (cross-validated accuracy "
                         f"{acc_a:.2f} against {acc_b:.2f}): the model may not represent this tool ({why}a mode "
                         "missing from the prior, a worn tool) or the marks are noisier than assumed")
