@@ -12,7 +12,8 @@ from oma.modal_io import write_modal_model
 from planner.cli import main
 from planner.learn.posterior import Posterior, PriorSD
 from planner.learn.posterior_io import read_posterior, write_posterior_model
-from planner.learn.predictive import ChanceLimit
+from planner.learn.outcomes_io import CutTable
+from planner.learn.predictive import ChanceLimit, depth_at_probability, predict_cuts
 from planner.learn.synthetic import tool_problem
 from planner.learn.tables import reference_limits, scaled_coefficients, scaled_model
 from stability.setup import Limits
@@ -39,22 +40,55 @@ def case(tmp_path_factory):
     return d, setup, post
 
 
-def test_chance_limit_is_the_quantile_of_direct_limits(case):
-    """The 95 % chance depth at a speed equals the 5 % quantile of the samples' own limits
-    computed directly (table interpolation error: 3 %, see test_learn_posterior)."""
+def test_chance_limit_is_where_the_predictive_probability_of_direct_limits_falls_to_the_level(case):
+    """The 95 % chance depth at a speed is where P(stable), computed from the samples' own limits
+    solved directly and the soft boundary, is 0.95 (table interpolation error: 3 %, see
+    test_learn_posterior); it lies below the samples' 5 % quantile (the soft boundary widens)."""
     _, setup, post = case
-    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.95)
+    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.95, max_samples=60)
     rpm = np.array([9500.0, 11000.0])
     direct = []
-    for u in post.thinned(60).samples:
+    for u in post.thinned(60).samples:  # the same 60 samples as the chance limit's
         model = scaled_model(post.reference, log_f=u[0], log_k=u[1], log_zeta=u[2])
         coef = scaled_coefficients(post.coefficients, log_kt=u[3], log_kr=u[4])
         direct.append(reference_limits(model, setup.tool, setup.cut, coef, rpm, method="zoa"))
-    q = np.quantile(np.array(direct), 0.05, axis=0)
-    np.testing.assert_allclose(limit(rpm), q, rtol=0.06)  # 60 vs 300 samples: quantile noise + table
-    assert np.all(limit(rpm) < np.median(np.array(direct), axis=0))
+    direct = np.array(direct)
+    a = limit(rpm)
+    s = post.likelihood.scale()
+    p_direct = np.mean(1.0 / (1.0 + np.exp(-(np.log(direct) - np.log(a)[None, :]) / s)), axis=0)
+    np.testing.assert_allclose(p_direct, 0.95, atol=0.03)
+    assert np.all(a < np.quantile(direct, 0.05, axis=0))
     with pytest.raises(ValueError, match="probability"):
         ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=1.0)
+
+
+def test_the_chance_depth_is_where_predict_gives_the_level(case):
+    """``plan``'s chance constraint and ``learn --predict`` state one probability: a cut at the
+    90 % depth is predicted stable with 0.90, with the table's error in the soft boundary."""
+    _, setup, post = case
+    post = replace(post, likelihood=replace(post.likelihood, model_error=0.05))
+    rpm = np.array([9300.0, 10400.0, 11800.0])
+    depth = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.9)(rpm)
+    cuts = CutTable(rpm, depth, np.full(3, setup.cut.radial_depth_m), np.full(3, setup.cut.milling == "down"),
+                    np.full(3, -1), np.ones(3), np.full(3, np.nan), np.zeros(3, bool))
+    np.testing.assert_allclose(predict_cuts(post, setup, cuts), 0.9, atol=0.01)
+    wider = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.9)(rpm)
+    narrow = ChanceLimit(replace(post, likelihood=replace(post.likelihood, model_error=0.0)), setup,
+                         setup.limits.spindle_rpm, probability=0.9)(rpm)
+    assert np.all(wider < narrow)
+
+
+@pytest.mark.parametrize("kernel", ["logistic", "normal"])
+def test_depth_at_probability_against_monte_carlo(kernel):
+    """The bisection against draws of the definition: a sample's limit times the kernel's noise."""
+    rng = np.random.default_rng(3)
+    log_b = np.log(2e-3) + np.c_[0.2 * rng.standard_normal(300), 0.05 * rng.standard_normal(300) + 0.3]
+    s = 0.04
+    a = depth_at_probability(log_b, 0.9, s, kernel=kernel)
+    noise = rng.logistic(size=(200, 300, 1)) if kernel == "logistic" else rng.standard_normal((200, 300, 1))
+    p = np.mean(log_b[None] + s * noise > np.log(a), axis=(0, 1))
+    np.testing.assert_allclose(p, 0.9, atol=0.005)
+    np.testing.assert_allclose(depth_at_probability(log_b, 0.9, 0.0), np.exp(np.quantile(log_b, 0.1, axis=0)))
 
 
 def test_plan_with_a_posterior_uses_the_chance_constraint(case, capsys):

@@ -1,11 +1,26 @@
 """What a posterior predicts: P(stable) of cuts, lobes with probability contours, the chance-
-constrained limit depth used by ``plan``."""
+constrained limit depth used by ``plan``.
+
+One probability throughout: the posterior predictive probability that a cut is stable,
+
+    P(stable | a) = mean over samples s of  1 - p_chatter(log(a / b_s)),
+
+with ``p_chatter`` the likelihood's soft boundary, whose width is the boundary scale and the forward
+model's error (the tables' error and, with ``mode_correlation`` below 1, the modes' own
+deviations, measured by ``learn``) in quadrature. ``--predict`` reports it, the lobes' contours
+are its level sets and ``plan``'s chance constraint keeps it at or above the stated level. (Before
+session 11 the contours and the chance constraint were quantiles of the samples' limits alone:
+a 95 % depth above the depth ``--predict`` gave 95 % at, ignoring the tables' error and the soft
+boundary.) The distribution of the limit itself, without the soft boundary (the limit band the
+benchmark checks against the true limit), is :meth:`ProbabilityLobes.limit_quantile`.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.special import expit, ndtr
 
 from oma._arrays import readonly
 
@@ -14,7 +29,7 @@ from .posterior import Posterior
 from .tables import FINE_NODES, Grid, LimitTable, build_table
 
 __all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "lobes_from_table",
-           "ChanceLimit"]
+           "ChanceLimit", "depth_at_probability"]
 
 
 def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
@@ -41,13 +56,33 @@ def predict_cuts(posterior: Posterior, setup, cuts: CutTable, *, method: str | N
     return posterior.probability_stable(table, cuts.axial_depth_m)
 
 
+def depth_at_probability(log_limits: np.ndarray, probability: float, scale: float, *,
+                         kernel: str = "logistic") -> np.ndarray:
+    """The depth (per column) at which ``mean_s K((log b_s - log a) / scale)`` equals
+    ``probability``: ``K`` the logistic (the predictive P(stable), module notes) or the normal
+    ``cdf`` (the limit's own distribution with a forward-model error ``scale``); ``scale = 0`` is
+    the samples' empirical ``1 - probability`` quantile. ``log_limits`` (n_samples, n_cols)."""
+    ll = np.asarray(log_limits, dtype=float)
+    if not scale > 0:
+        return np.exp(np.quantile(ll, 1.0 - probability, axis=0))
+    cdf = expit if kernel == "logistic" else ndtr
+    lo = ll.min(axis=0) - 40.0 * scale
+    hi = ll.max(axis=0) + 40.0 * scale
+    for _ in range(60):  # bisection on log a: P falls from ~1 at lo to ~0 at hi
+        mid = 0.5 * (lo + hi)
+        above = np.mean(cdf((ll - mid[None, :]) / scale), axis=0) >= probability
+        lo, hi = np.where(above, mid, lo), np.where(above, hi, mid)
+    return np.exp(0.5 * (lo + hi))
+
+
 @dataclass(frozen=True)
 class ProbabilityLobes:
     """The posterior's limit depth over speed at one engagement.
 
-    ``quantiles`` maps a probability of stability ``p`` to the depth (m, per speed) below which a
-    cut is stable with probability ``p`` (the ``1 - p`` quantile of the limit over the samples);
-    ``limits`` holds every sample's limit (n_samples, n_rpm).
+    ``quantiles`` maps a probability of stability ``p`` to the depth (m, per speed) at which the
+    posterior predictive P(stable) is ``p`` (the module notes: the samples' limits and the soft
+    boundary of width ``scale``); ``limits`` holds every sample's limit (n_samples, n_rpm);
+    ``model_error`` is the log-sd of the forward model's error in them (:meth:`limit_quantile`).
     """
 
     rpm: np.ndarray
@@ -56,15 +91,26 @@ class ProbabilityLobes:
     quantiles: dict
     radial_depth_m: float
     milling: str
+    scale: float = 0.0
+    model_error: float = 0.0
 
     def probability_stable(self, axial_depth_m) -> np.ndarray:
         """P(stable) at every speed for each depth: shape (n_depths, n_rpm)."""
-        a = np.atleast_1d(np.asarray(axial_depth_m, dtype=float))
-        return np.mean(self.limits[None, :, :] > a[:, None, None], axis=1)
+        a = np.log(np.atleast_1d(np.asarray(axial_depth_m, dtype=float)))
+        ll = np.log(self.limits)[None, :, :]
+        if not self.scale > 0:
+            return np.mean(ll > a[:, None, None], axis=1)
+        return np.mean(expit((ll - a[:, None, None]) / self.scale), axis=1)
+
+    def limit_quantile(self, p: float) -> np.ndarray:
+        """The depth (m, per speed) below which the limit itself lies with probability ``p``: the
+        samples' limits with the forward model's log-normal error, no soft boundary."""
+        return depth_at_probability(np.log(self.limits), 1.0 - p, self.model_error, kernel="normal")
 
     def to_dict(self) -> dict:
         return {"rpm": self.rpm.tolist(), "radial_depth_m": self.radial_depth_m, "milling": self.milling,
-                "depth_at_probability_m": {f"{p:g}": self.quantiles[p].tolist() for p in self.levels}}
+                "depth_at_probability_m": {f"{p:g}": self.quantiles[p].tolist() for p in self.levels},
+                "boundary_width": self.scale, "model_error": self.model_error}
 
     def plot(self, ax=None, *, cuts: CutTable | None = None):
         from .plots import plot_probability_lobes
@@ -90,17 +136,20 @@ def lobes_from_table(posterior: Posterior, table: LimitTable, rpm, *, radial_dep
     """The lobes of every sample of ``posterior`` through ``table``, a limit table over the speeds
     ``rpm`` at the engagement ``radial_depth_m``, ``milling`` (e.g. one table built over the
     samples of several posteriors, each then interpolated)."""
-    lim = np.exp(posterior.log_limits(table))
-    quant = {float(p): readonly(np.quantile(lim, 1.0 - p, axis=0)) for p in levels}
-    return ProbabilityLobes(rpm=readonly(np.asarray(rpm, dtype=float)), limits=readonly(lim),
+    log_lim = posterior.log_limits(table)
+    scale = float(posterior.likelihood.scale())
+    quant = {float(p): readonly(depth_at_probability(log_lim, p, scale)) for p in levels}
+    return ProbabilityLobes(rpm=readonly(np.asarray(rpm, dtype=float)), limits=readonly(np.exp(log_lim)),
                             levels=tuple(float(p) for p in levels), quantiles=quant,
-                            radial_depth_m=float(radial_depth_m), milling=milling)
+                            radial_depth_m=float(radial_depth_m), milling=milling, scale=scale,
+                            model_error=float(posterior.likelihood.model_error))
 
 
 class ChanceLimit:
     """The depth (m) below which the cut of ``setup`` is stable with ``probability``, at any speed
-    in ``rpm_range``: the ``1 - probability`` quantile of the posterior's limit (the chance
-    constraint of ``plan``). The limit table is built once over the range; each call interpolates.
+    in ``rpm_range``: where the posterior predictive P(stable) (module notes; what ``--predict``
+    reports) falls to ``probability`` (the chance constraint of ``plan``). The limit table is
+    built once over the range; each call interpolates.
 
     Parameters
     ----------
@@ -133,7 +182,8 @@ class ChanceLimit:
         return np.exp(self.posterior.log_limits(table))
 
     def __call__(self, rpm) -> np.ndarray:
-        return np.quantile(self.samples(rpm), 1.0 - self.probability, axis=0)
+        return depth_at_probability(np.log(self.samples(rpm)), self.probability,
+                                    float(self.posterior.likelihood.scale()))
 
 
 def with_engagement(setup, radial_depth_m: float, milling: str):
