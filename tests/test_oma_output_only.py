@@ -449,3 +449,28 @@ def test_extra_mode_case_finds_all_four_modes_and_drops_unsupported_candidates()
                             u / np.linalg.norm(u, axis=0), lines_hz=m.harmonics[0].freq_hz, evidence=ev)
     assert ev["dropped"].tolist() == [False] * 4 + [True]
     assert abs(f[np.argmin(np.abs(m.freq_hz - 70.0))] / 70.0 - 1) < FREQ_TOL
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_modes_off_the_machine_axes_are_found_and_scaled(seed):
+    """Not the paper's cell: the two in-plane modes at 30 degrees to the axes (12 Hz / 4 %, 26 Hz /
+    3 %) and a Z mode apart from them (17 Hz / 5 %). Every mode is found (seed 1 lost the 17 Hz mode
+    before session 11: the refit without it reached a spectrum so nearly singular that ``inv``
+    gave a quadratic form of -1.9e12, a "gain" that dropped it), directions within 3 degrees, the
+    in-plane stiffnesses within 10 % and every stiffness inside its stated 95 % interval."""
+    c, s = np.cos(np.deg2rad(30.0)), np.sin(np.deg2rad(30.0))
+    dirs = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    truth = ModalModel(natural_frequency_hz=[12.0, 26.0, 17.0], damping_ratio=[0.04, 0.03, 0.05],
+                       stiffness_N_m=[1.2e6, 2.5e6, 2.0e6], directions=dirs)
+    rec = synthetic_record(truth, duration_s=20.0, rng=seed, spindle_rpm=2700.0, output="acceleration", runout_m=None)
+    res = identify_output_only([rec])
+    m, st = res.model, res.stiffness
+    assert m.n_modes == 3 and not any("not kept" in w for w in res.warnings)
+    for k in range(3):
+        j = int(np.argmin(np.abs(m.natural_frequency_hz / truth.natural_frequency_hz[k] - 1)))
+        assert abs(m.natural_frequency_hz[j] / truth.natural_frequency_hz[k] - 1) < FREQ_TOL
+        assert np.degrees(np.arccos(min(1.0, abs(m.directions[j] @ dirs[k])))) < 3.0
+        lo, hi = st.interval_N_m[j]
+        assert lo <= truth.stiffness_N_m[k] <= hi
+        if k < 2:
+            assert abs(m.stiffness_N_m[j] / truth.stiffness_N_m[k] - 1) < 0.10

@@ -121,6 +121,11 @@ def _spectrum(p, mod: _Model):
     return pp, q, d, v, vh, mod.gain[:, None, None] * (v @ pp.c @ vh) + pp.n[None]
 
 
+#: Smallest ratio of the Cholesky factor's diagonal entries per bin (the square root of the
+#: smallest reciprocal condition number, 1e-14) of a model spectrum taken for a fit.
+MAX_CONDITION_ROOT = 1e-7
+
+
 def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     """Whittle negative log-likelihood and its gradient (analytic) in the parameters ``p``;
     ``per_bin``: the gradient of each bin's term instead, shape (K, n_params) (the scores whose
@@ -131,15 +136,21 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     f, z, u, norm, lc, ln, c, n, tm, tl = pp
     try:  # a singular model spectrum (a Cholesky factor that exists, an inverse that does not) is no fit
         chol = np.linalg.cholesky(s)
-        sinv = np.linalg.inv(s)
+        diag = np.real(np.diagonal(chol, axis1=1, axis2=2))
+        if not np.all(diag > 0) or not np.all(np.isfinite(diag)) \
+                or np.any(diag.min(axis=1) < MAX_CONDITION_ROOT * diag.max(axis=1)):
+            raise np.linalg.LinAlgError
+        linv = np.linalg.inv(chol)
     except np.linalg.LinAlgError:
         return 1e30, np.zeros((x.shape[0], p.size) if per_bin else p.shape)
-    diag = np.real(np.diagonal(chol, axis1=1, axis2=2))
-    if not np.all(diag > 0) or not np.all(np.isfinite(diag)):
-        return 1e30, np.zeros((x.shape[0], p.size) if per_bin else p.shape)
     logdet = 2.0 * np.sum(np.log(diag))
+    # the inverse through the Cholesky factor: ``S^-1 = L^-H L^-1`` stays positive definite where
+    # ``inv(S)`` of a nearly singular spectrum does not (a refit once reached a quadratic form of
+    # -1.9e12, "gaining" that much likelihood by dropping a true mode); the form is ``|L^-1 x|^2``
+    w = (linv @ x[:, :, None])[..., 0]
+    sinv = np.conj(np.swapaxes(linv, 1, 2)) @ linv
     y = (sinv @ x[:, :, None])[..., 0]
-    val = float(logdet + np.real(np.sum(np.conj(x) * y)))
+    val = float(logdet + np.sum(np.abs(w) ** 2))
     gmat = sinv - y[:, :, None] * np.conj(y)[:, None, :]                   # dL/dS^T, Hermitian
     a = gain[:, None, None] * (vh @ gmat @ v)                              # (K, m+q, m+q)
     b = gain[:, None, None] * (c[None] @ vh @ gmat)[:, :m]                 # (K, m, l)
