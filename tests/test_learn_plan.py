@@ -72,10 +72,9 @@ def test_the_chance_depth_is_where_predict_gives_the_level(case):
     cuts = CutTable(rpm, depth, np.full(3, setup.cut.radial_depth_m), np.full(3, setup.cut.milling == "down"),
                     np.full(3, -1), np.ones(3), np.full(3, np.nan), np.zeros(3, bool))
     np.testing.assert_allclose(predict_cuts(post, setup, cuts), 0.9, atol=0.01)
-    wider = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.9)(rpm)
     narrow = ChanceLimit(replace(post, likelihood=replace(post.likelihood, model_error=0.0)), setup,
                          setup.limits.spindle_rpm, probability=0.9)(rpm)
-    assert np.all(wider < narrow)
+    assert np.all(depth < narrow)  # the table's error lowers the chance depth
 
 
 @pytest.mark.parametrize("kernel", ["logistic", "normal"])
