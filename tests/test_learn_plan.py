@@ -139,3 +139,31 @@ def test_a_posterior_of_several_modes_keeps_its_mode_spread_through_its_file(tmp
     bad.write_text(text.replace("mode_spread:", "mode_spread: [1, 2]\n  old_mode_spread:"))
     with pytest.raises(ModelError, match="mode_spread"):
         read_posterior(bad)
+
+
+def test_the_chance_limit_checks_its_own_table_and_widens_by_the_larger_error(case):
+    """The planned engagement's table is checked against direct limits (its RMS log error,
+    ``table_error``, recomputed here on the same samples and speeds) and the soft boundary is
+    widened by the larger of it and the training cuts' error."""
+    _, setup, post = case
+    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.95, check=4, check_speeds=5)
+    thin = post.thinned(400)
+    u = thin.samples[np.random.default_rng(0).permutation(thin.samples.shape[0])[:4]]
+    r = np.geomspace(*setup.limits.spindle_rpm, 5)
+    direct = []
+    for x in u:
+        model = scaled_model(post.reference, log_f=x[0], log_k=x[1], log_zeta=x[2])
+        coef = scaled_coefficients(post.coefficients, log_kt=x[3], log_kr=x[4])
+        direct.append(reference_limits(model, setup.tool, setup.cut, coef, r, method="zoa"))
+    table = np.log(limit.samples(r))[np.r_[[np.flatnonzero(np.all(thin.samples == x, axis=1))[0] for x in u]]]
+    np.testing.assert_allclose(limit.table_error, np.sqrt(np.mean((table - np.log(direct)) ** 2)), rtol=0.05,
+                               atol=2e-3)
+    lk = post.likelihood
+    assert limit.boundary_width == pytest.approx(float(np.hypot(lk.boundary_scale, max(lk.model_error,
+                                                                                        limit.table_error))))
+    big = replace(post, likelihood=replace(lk, model_error=limit.table_error + 0.1))
+    wide = ChanceLimit(big, setup, setup.limits.spindle_rpm, probability=0.95, check=4, check_speeds=5)
+    assert wide.boundary_width == pytest.approx(float(np.hypot(lk.boundary_scale, limit.table_error + 0.1)))
+    assert np.all(wide(r) < limit(r))
+    unchecked = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.95, check=0)
+    assert unchecked.table_error == 0.0

@@ -228,6 +228,7 @@ def chance_constraint(model_path, setup, *, probability: float = 0.95):
     limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=probability)
     learned = {"probability": float(probability), "samples": int(post.samples.shape[0]),
                "method": post.method, "cause": post.cause(), "parameters": post.parameters(),
+               "table_error": limit.table_error, "boundary_width": limit.boundary_width,
                "note": f"stability: P(stable) >= {probability:g} under the posterior learned from test cuts, "
                        "the forward model's error included (the chance constraint replaces the stability margin)"}
     return limit, learned

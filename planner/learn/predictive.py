@@ -26,7 +26,7 @@ from oma._arrays import readonly
 
 from .outcomes_io import CutTable
 from .posterior import Posterior
-from .tables import FINE_NODES, Grid, LimitTable, build_table
+from .tables import FINE_NODES, Grid, LimitTable, build_table, direct_log_limits
 
 __all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "lobes_from_table",
            "ChanceLimit", "depth_at_probability"]
@@ -151,6 +151,12 @@ class ChanceLimit:
     reports) falls to ``probability`` (the chance constraint of ``plan``). The limit table is
     built once over the range; each call interpolates.
 
+    The table is checked where it is used: ``check`` samples are solved directly at
+    ``check_speeds`` speeds over the range, and the soft boundary is widened by the larger of
+    that RMS log error (``table_error``) and the error ``learn`` measured at its training cuts
+    (``likelihood.model_error``, which also carries the modes' own deviations): the training cuts'
+    tables are not this engagement's.
+
     Parameters
     ----------
     posterior : Posterior
@@ -159,10 +165,12 @@ class ChanceLimit:
     rpm_range : (float, float)
     probability : float
         In (0, 1), e.g. 0.95.
+    check, check_speeds : int
+        Samples and speeds of the table check (0 samples: no check, the training cuts' error).
     """
 
     def __init__(self, posterior: Posterior, setup, rpm_range, *, probability: float = 0.95,
-                 method: str | None = None, max_samples: int = 400):
+                 method: str | None = None, max_samples: int = 400, check: int = 8, check_speeds: int = 12):
         if not 0 < probability < 1:
             raise ValueError(f"probability must be in (0, 1), found {probability}")
         self.probability = float(probability)
@@ -174,6 +182,21 @@ class ChanceLimit:
         rpm = np.geomspace(*self.rpm_range, n_rpm)
         self._table = _table(self.posterior, setup, rpm, np.full(rpm.size, setup.cut.radial_depth_m),
                              np.full(rpm.size, setup.cut.milling == "down"), method=method, grid=None)
+        self.table_error = 0.0
+        if check > 0:
+            u = self.posterior.samples[np.random.default_rng(0).permutation(self.posterior.samples.shape[0])[:check]]
+            r = np.geomspace(*self.rpm_range, int(check_speeds))
+            post = self.posterior
+            direct = direct_log_limits(post.reference, setup.tool, setup.cut, post.coefficients, r,
+                                       np.full(r.size, setup.cut.radial_depth_m),
+                                       np.full(r.size, setup.cut.milling == "down"), u,
+                                       method=method or post.method, sdm_steps=self._table.grid.sdm_steps)
+            table = replace(self._table, rpm=r, group=np.zeros(r.size, dtype=int))
+            err = post.log_limits(table, samples=u) - direct  # NaN where no limit exists (capped)
+            if np.isfinite(err).any():
+                self.table_error = float(np.sqrt(np.nanmean(err**2)))
+        lk = self.posterior.likelihood
+        self.boundary_width = float(lk.scale(max(lk.model_error, self.table_error)))
 
     def samples(self, rpm) -> np.ndarray:
         """Every sample's limit at the speeds, (n_samples, n_rpm), m."""
@@ -182,8 +205,7 @@ class ChanceLimit:
         return np.exp(self.posterior.log_limits(table))
 
     def __call__(self, rpm) -> np.ndarray:
-        return depth_at_probability(np.log(self.samples(rpm)), self.probability,
-                                    float(self.posterior.likelihood.scale()))
+        return depth_at_probability(np.log(self.samples(rpm)), self.probability, self.boundary_width)
 
 
 def with_engagement(setup, radial_depth_m: float, milling: str):
