@@ -192,9 +192,7 @@ class ChanceLimit:
                                        np.full(r.size, setup.cut.milling == "down"), u,
                                        method=method or post.method, sdm_steps=self._table.grid.sdm_steps)
             table = replace(self._table, rpm=r, group=np.zeros(r.size, dtype=int))
-            err = post.log_limits(table, samples=u) - direct  # NaN where no limit exists (capped)
-            if np.isfinite(err).any():
-                self.table_error = float(np.sqrt(np.nanmean(err**2)))
+            self.table_error = float(np.sqrt(np.mean((post.log_limits(table, samples=u) - direct) ** 2)))
         lk = self.posterior.likelihood
         self.boundary_width = float(lk.scale(max(lk.model_error, self.table_error)))
 
