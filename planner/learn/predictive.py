@@ -191,16 +191,18 @@ class ChanceLimit:
                                        np.full(r.size, setup.cut.radial_depth_m),
                                        np.full(r.size, setup.cut.milling == "down"), u,
                                        method=method or post.method, sdm_steps=self._table.grid.sdm_steps)
-            table = replace(self._table, rpm=r, group=np.zeros(r.size, dtype=int))
-            self.table_error = float(np.sqrt(np.mean((post.log_limits(table, samples=u) - direct) ** 2)))
+            self.table_error = float(np.sqrt(np.mean((post.log_limits(self._at(r), samples=u) - direct) ** 2)))
         lk = self.posterior.likelihood
         self.boundary_width = float(lk.scale(max(lk.model_error, self.table_error)))
 
+    def _at(self, rpm) -> LimitTable:
+        """The range's table read at the speeds ``rpm`` (clipped to the range)."""
+        rpm = np.clip(np.atleast_1d(np.asarray(rpm, dtype=float)), *self.rpm_range)
+        return replace(self._table, rpm=rpm, group=np.zeros(rpm.size, dtype=int))
+
     def samples(self, rpm) -> np.ndarray:
         """Every sample's limit at the speeds, (n_samples, n_rpm), m."""
-        rpm = np.clip(np.atleast_1d(np.asarray(rpm, dtype=float)), *self.rpm_range)
-        table = replace(self._table, rpm=rpm, group=np.zeros(rpm.size, dtype=int))
-        return np.exp(self.posterior.log_limits(table))
+        return np.exp(self.posterior.log_limits(self._at(rpm)))
 
     def __call__(self, rpm) -> np.ndarray:
         return depth_at_probability(np.log(self.samples(rpm)), self.probability, self.boundary_width)
