@@ -95,12 +95,13 @@ class ProbabilityLobes:
     model_error: float = 0.0
 
     def probability_stable(self, axial_depth_m) -> np.ndarray:
-        """P(stable) at every speed for each depth: shape (n_depths, n_rpm)."""
+        """P(stable) at every speed for each depth: shape (n_depths, n_rpm). One depth at a time:
+        samples x speeds in memory, not depths x samples x speeds (58 MB for the plot's grid)."""
         a = np.log(np.atleast_1d(np.asarray(axial_depth_m, dtype=float)))
-        ll = np.log(self.limits)[None, :, :]
+        ll = np.log(self.limits)
         if not self.scale > 0:
-            return np.mean(ll > a[:, None, None], axis=1)
-        return np.mean(expit((ll - a[:, None, None]) / self.scale), axis=1)
+            return np.array([np.mean(ll > x, axis=0) for x in a]).reshape(a.size, ll.shape[1])
+        return np.array([np.mean(expit((ll - x) / self.scale), axis=0) for x in a]).reshape(a.size, ll.shape[1])
 
     def limit_quantile(self, p: float) -> np.ndarray:
         """The depth (m, per speed) below which the limit itself lies with probability ``p``: the
