@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
 from oma.modal_io import read_modal_model, write_modal_model
 from planner.cli import main
@@ -136,6 +137,7 @@ def test_prior_sd_option(files, capsys, tmp_path):
 
 
 @pytest.mark.parametrize("option,value", [("--mislabel", "0.5"), ("--mislabel", "-0.1"), ("--mislabel-sd", "-1"),
+                                          ("--noisy-mislabel", "0"), ("--noisy-mislabel", "0.5"),
                                           ("--detection-lag", "-0.1"), ("--detection-scale", "0"),
                                           ("--mode-correlation", "1.2"), ("--mode-correlation", "-0.5")])
 def test_mislabel_options(files, capsys, tmp_path, option, value):
@@ -189,9 +191,16 @@ def test_averaged_mislabel_rate_is_reported_and_read_back(files, capsys, tmp_pat
     assert code == 0, err
     rate = json.loads(out)["parameters"]["mislabel_rate"]
     assert not rate["fixed"] and 0.0 <= rate["learned_probability"] <= 1.0
-    assert 0.05 < rate["prior"] < Likelihood(mislabel_sd=1.2).mislabel_prior()[0]
+    slab = Likelihood(mislabel=0.15, mislabel_sd=1.2).mislabel_prior()[0]  # the learned share's prior alone
+    assert rate["prior"] == pytest.approx(0.5 * 0.05 + 0.5 * slab)
     post = read_posterior(tmp_path / "p.yaml")
     assert post.likelihood.averages_mislabel and post.likelihood.mislabel_sd == 1.2
+    assert post.likelihood.noisy_mislabel == 0.15
+    # a file written before session 12 (no noisy_mislabel): its slab was centred on the spike
+    doc = yaml.safe_load((tmp_path / "p.yaml").read_text())
+    del doc["x_posterior"]["likelihood"]["noisy_mislabel"]
+    (tmp_path / "old.yaml").write_text(yaml.safe_dump(doc))
+    assert read_posterior(tmp_path / "old.yaml").likelihood.noisy_mislabel == 0.05
 
 
 def test_read_cuts_detects_outcome_from_record(tmp_path):

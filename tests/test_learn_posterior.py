@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.special import expit, logit
 
 from oma.modal import ModalModel
 from planner.learn.likelihood import CHATTER, STABLE, UNCERTAIN, Likelihood
@@ -264,6 +265,24 @@ def test_mislabel_rate_prior_and_per_sample_terms():
         Likelihood(mislabel_sd=-1.0)
 
 
+def test_averaged_rate_prior_is_a_spike_at_the_rate_and_a_slab_around_the_noisy_one():
+    """``mislabel_average``: half of the prior at ``mislabel``, half logit-normal with its median at
+    ``noisy_mislabel``: the Gauss-Hermite mean and sd against Monte Carlo draws of that mixture;
+    the learned component samples the slab."""
+    lk = Likelihood(mislabel=0.05, mislabel_sd=1.2, mislabel_average=True, noisy_mislabel=0.15)
+    fixed, slab = lk.components()
+    assert not fixed.learns_mislabel and fixed.mislabel == 0.05
+    assert slab.learns_mislabel and float(slab.mislabel_rate(0.0)) == pytest.approx(0.15)
+    rng = np.random.default_rng(1)
+    n = 400_000
+    r = np.where(rng.random(n) < 0.5, 0.05, 0.5 * expit(logit(0.3) + 1.2 * rng.standard_normal(n)))
+    m, sd = lk.mislabel_prior()
+    assert m == pytest.approx(r.mean(), rel=0.01) and sd == pytest.approx(r.std(), rel=0.01)
+    assert np.quantile(r[r != 0.05], 0.95) > 1 / 3  # a shop whose operators disagree on a third: inside
+    with pytest.raises(ValueError, match="noisy_mislabel"):
+        Likelihood(noisy_mislabel=0.5)
+
+
 def _zoa_problem(problem, n, seed, flip, free=("frequency", "stiffness")):
     """``n`` cuts labelled from the truth's own table value (an exactly specified model), a share
     ``flip`` of the marks flipped; returns (cuts, table, flipped)."""
@@ -309,8 +328,8 @@ def test_smc_with_a_learned_mislabel_rate_matches_a_grid_posterior(problem):
 def test_averaged_mislabel_rate_matches_the_grid_evidence_and_posterior(problem, flip):
     """``mislabel_average``: the fixed 5 % rate and the learned one mixed by their evidence. On a
     grid (frequency x the rate's log-odds; 40 cuts, frequency free) the evidence of each model is
-    an integral, and so the probability of the learned rate: the SMC's within 0.05 of it (5 %
-    flipped: about 0.4, the two models about even; 20 %: about 0.98), and the mixture's marginals
+    an integral, and so the probability of the learned rate (its prior's median at 15 %): the
+    SMC's within 0.05 of it, and the mixture's marginals
     of frequency and rate within the tolerances of the grid tests above."""
     cuts, table, _ = _zoa_problem(problem, 40, 31, flip, free=("frequency",))
     lk = Likelihood(mislabel_sd=1.2, mislabel_average=True)
@@ -323,7 +342,7 @@ def test_averaged_mislabel_rate_matches_the_grid_evidence_and_posterior(problem,
     prior_f = np.exp(-0.5 * (gf / sd_f) ** 2) / (np.sqrt(2 * np.pi) * sd_f) * (gf[1] - gf[0])
     prior_x = np.exp(-0.5 * (gx / lk.mislabel_sd) ** 2) / (np.sqrt(2 * np.pi) * lk.mislabel_sd) * (gx[1] - gx[0])
     like_fixed = np.exp(lk.log_terms(log_r, cuts.outcome, cuts.weight, mislabel=lk.mislabel).sum(axis=1))
-    eps = lk.mislabel_rate(gx)
+    eps = 0.5 * expit(logit(2 * lk.noisy_mislabel) + gx)  # the slab: logit-normal around noisy_mislabel
     like_learned = np.exp(np.stack([lk.log_terms(log_r, cuts.outcome, cuts.weight, mislabel=e).sum(axis=1)
                                     for e in eps], axis=1))  # (f, x)
     z_fixed = np.sum(like_fixed * prior_f)

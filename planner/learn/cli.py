@@ -54,6 +54,9 @@ def add_parsers(sub) -> None:
     p.add_argument("--mislabel-sd", type=float, default=None, metavar="SD",
                    help="prior sd of the learned share's log-odds (default 1.2: 90 %% between 0.7 and 22 %%); "
                         "given alone, > 0 learns the share (as --mislabel-model learned) and 0 fixes it")
+    p.add_argument("--noisy-mislabel", type=float, default=0.15, metavar="RATE",
+                   help="averaged share (--mislabel-model average): the median of the learned share's prior, the "
+                        "alternative to a fixed --mislabel (default 0.15: 90 %% of it between 2.8 %% and 38 %%)")
     p.add_argument("--mislabel-model", choices=["fixed", "learned", "average"], default=None,
                    help="the share of wrong marks fixed at --mislabel, learned, or both averaged by their evidence "
                         "(default: average; learned when only --mislabel-sd > 0 is given; fixed with --mislabel 0)")
@@ -115,7 +118,8 @@ def _likelihood(args):
         raise UsageError("--mislabel-model", f"--mislabel > 0 and --mislabel-sd > 0 to learn the share ({mode})",
                          f"--mislabel {args.mislabel:g} --mislabel-sd {sd:g}")
     return Likelihood(mislabel=args.mislabel, mislabel_sd=0.0 if mode == "fixed" else sd,
-                      mislabel_average=mode == "average", detection_lag=lag, detection_scale=width)
+                      mislabel_average=mode == "average", noisy_mislabel=args.noisy_mislabel, detection_lag=lag,
+                      detection_scale=width)
 
 
 def _cmd_learn(args) -> int:
@@ -137,6 +141,8 @@ def _cmd_learn(args) -> int:
     prior_sd = parse_prior_sd(args.prior_sd)
     if not 0 <= args.mislabel < 0.5:
         raise UsageError("--mislabel", "a share in [0, 0.5)", str(args.mislabel))
+    if not 0 < args.noisy_mislabel < 0.5:
+        raise UsageError("--noisy-mislabel", "a share in (0, 0.5)", str(args.noisy_mislabel))
     if args.mislabel_sd is not None and not args.mislabel_sd >= 0:
         raise UsageError("--mislabel-sd", "a log-odds sd >= 0", str(args.mislabel_sd))
     likelihood = _likelihood(args)

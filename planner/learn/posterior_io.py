@@ -110,6 +110,8 @@ def read_posterior(path) -> Posterior | None:
     samples = _array(node, "samples", path, shape_tail=len(PARAMETERS))
     sd = _array(node, "prior_log_sd", path)
     lk = node.get("likelihood") or {}
+    if "noisy_mislabel" not in lk and 0 < float(lk.get("mislabel", 0.0)) < 0.5:
+        lk = {**lk, "noisy_mislabel": lk["mislabel"]}  # written before session 12: the slab's median was the spike
     likelihood = Likelihood(**{k_: (bool(v) if k_ == "mislabel_average" else float(v)) for k_, v in lk.items()
                                if k_ in Likelihood.__dataclass_fields__})
     if samples.shape[0] == 0 or sd.shape != (len(PARAMETERS),):
