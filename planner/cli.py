@@ -246,7 +246,7 @@ def _cmd_plan(args) -> int:
     from planner.optimize import plan
     from stability.setup_io import read_setup
 
-    from planner.learn.cli import chance_constraint
+    from planner.learn.cli import chance_constraint, verify_plan
 
     setup = read_setup(args.setup)
     model = structure_from_args(args)
@@ -258,14 +258,22 @@ def _cmd_plan(args) -> int:
         save_figure(fig, args.output)
     payload = result.to_dict()
     if learned is not None:
+        if result.success:
+            verify_plan(limit, learned, payload["spindle_rpm"], payload["axial_depth_m"])
         payload["learned"] = learned
 
     def human(p):
         if not p["success"]:
             return f"no plan ({result.status}): {result.message}"
-        return (f"{p['spindle_rpm']:.0f} rpm, axial depth {1e3 * p['axial_depth_m']:.2f} mm, feed "
+        text = (f"{p['spindle_rpm']:.0f} rpm, axial depth {1e3 * p['axial_depth_m']:.2f} mm, feed "
                 f"{1e3 * p['feed_per_tooth_m']:.3f} mm/tooth: MRR {1e6 * p['mrr_m3_s']:.2f} cm^3/s; active: "
                 + (", ".join(p["active_constraints"]) or "none"))
+        check = (p.get("learned") or {}).get("check")
+        if check:
+            text += (f"\nP(stable) of the planned cut, {check['samples']} posterior samples solved directly: "
+                     f"{check['probability_stable']:.3f} +- {check['standard_error']:.3f} (the limit table: "
+                     f"{check['table_probability_stable']:.3f})")
+        return "\n".join([text] + [f"warning: {w}" for w in (p.get("learned") or {}).get("warnings", [])])
 
     emit(args, payload, human)
     if result.success:

@@ -96,6 +96,8 @@ def test_plan_with_a_posterior_uses_the_chance_constraint(case, capsys):
     out = json.loads(capsys.readouterr().out)
     assert code == 0
     assert out["learned"]["probability"] == 0.9 and "cause" in out["learned"]
+    check = out["learned"]["check"]  # the planned cut, solved directly
+    assert check["samples"] == 64 and check["spindle_rpm"] == out["spindle_rpm"] and check["holds"]
     limit = ChanceLimit(read_posterior(d / "post.yaml"), setup, setup.limits.spindle_rpm, probability=0.9)
     lim = float(limit(np.array([out["spindle_rpm"]]))[0])
     # the plan respects the 90 % depth and not the (halving) margin factor
@@ -167,3 +169,34 @@ def test_the_chance_limit_checks_its_own_table_and_widens_by_the_larger_error(ca
     assert np.all(wide(r) < limit(r))
     unchecked = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.95, check=0)
     assert unchecked.table_error == 0.0
+
+
+def test_the_planned_cut_is_verified_by_directly_solved_samples(case):
+    """``verify``: P(stable) of a cut from posterior samples solved directly at its speed (the
+    same samples recomputed here, the soft boundary without table error); at the chance depth it
+    agrees with the level within its stated standard error; 30 % deeper it does not hold, and
+    ``plan``'s report carries a warning."""
+    from scipy.special import expit
+
+    from planner.learn.cli import verify_plan
+
+    _, setup, post = case
+    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.9)
+    rpm = 10300.0
+    a = float(limit([rpm])[0])
+    check = limit.verify(rpm, a, samples=40)
+    thin = post.thinned(400)
+    u = thin.samples[np.random.default_rng(1).permutation(thin.samples.shape[0])[:40]]
+    direct = np.array([reference_limits(scaled_model(post.reference, log_f=x[0], log_k=x[1], log_zeta=x[2]),
+                                        setup.tool, setup.cut,
+                                        scaled_coefficients(post.coefficients, log_kt=x[3], log_kr=x[4]),
+                                        np.array([rpm]), method="zoa")[0] for x in u])
+    p = expit((np.log(direct) - np.log(a)) / post.likelihood.scale())
+    assert check["probability_stable"] == pytest.approx(p.mean(), abs=2e-3)
+    assert check["standard_error"] == pytest.approx(p.std(ddof=1) / np.sqrt(40), rel=0.05)
+    assert check["table_probability_stable"] == pytest.approx(0.9, abs=1e-3)
+    assert check["holds"] and abs(check["probability_stable"] - 0.9) < 3 * check["standard_error"] + 0.02
+    learned = {}
+    verify_plan(limit, learned, rpm, 1.3 * a)
+    assert not learned["check"]["holds"] and learned["check"]["probability_stable"] < 0.8
+    assert "below the level 0.9" in learned["warnings"][0]

@@ -220,6 +220,18 @@ def _human(d, result) -> str:
 
 
 # ------------------------------------------------------------- used by `plan` and `lobes` (planner.cli)
+def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float) -> None:
+    """For ``plan``: the planned cut's P(stable) from posterior samples solved directly at its speed
+    (``learned['check']``) and a warning when it falls short of the level."""
+    check = limit.verify(rpm, axial_depth_m)
+    learned["check"] = check
+    if not check["holds"]:
+        learned.setdefault("warnings", []).append(
+            f"the planned cut is stable with P = {check['probability_stable']:.3f} (+- {check['standard_error']:.3f}) "
+            f"when {check['samples']} posterior samples are solved directly at {rpm:.0f} rpm, below the level "
+            f"{limit.probability:g} the limit table gave: plan a lower depth or check the cut")
+
+
 def chance_constraint(model_path, setup, *, probability: float = 0.95):
     """For ``plan``: ``(stability_limit, learned)`` when the model carries ``x_posterior`` (the
     depth stable with ``probability``, and what was learned, for the report), else ``(None, None)``."""

@@ -177,6 +177,7 @@ class ChanceLimit:
         self.probability = float(probability)
         self.rpm_range = (float(min(rpm_range)), float(max(rpm_range)))
         self.posterior = posterior.thinned(max_samples)
+        self._setup, self._method = setup, method or self.posterior.method
         # grid speeds closer than the lattice step, so the lattice covers the whole range
         step = predictive_grid(self.posterior).log_speed_step
         n_rpm = int(np.ceil(np.log(self.rpm_range[1] / self.rpm_range[0]) / step)) + 2
@@ -207,6 +208,26 @@ class ChanceLimit:
 
     def __call__(self, rpm) -> np.ndarray:
         return depth_at_probability(np.log(self.samples(rpm)), self.probability, self.boundary_width)
+
+    def verify(self, rpm: float, axial_depth_m: float, *, samples: int = 64) -> dict:
+        """The planned cut checked without any table: ``samples`` posterior samples solved directly
+        at its speed, and its P(stable) from them with the training cuts' soft boundary (no table
+        error to widen by: these limits are direct), with the Monte Carlo standard error of that
+        mean. ``holds``: not below the level by more than two standard errors. The plan's speed is
+        usually on a lobe's peak, where a table interpolates least well; this is where it matters."""
+        post = self.posterior
+        u = post.samples[np.random.default_rng(1).permutation(post.samples.shape[0])[:int(samples)]]
+        cut = self._setup.cut
+        direct = direct_log_limits(post.reference, self._setup.tool, cut, post.coefficients, np.array([float(rpm)]),
+                                   np.array([cut.radial_depth_m]), np.array([cut.milling == "down"]), u,
+                                   method=self._method, sdm_steps=self._table.grid.sdm_steps)[:, 0]
+        lk = post.likelihood
+        p = expit((direct - np.log(axial_depth_m)) / lk.scale())
+        se = float(np.std(p, ddof=1) / np.sqrt(p.size)) if p.size > 1 else float("nan")
+        p_table = float(np.mean(expit((np.log(self.samples([rpm])[:, 0]) - np.log(axial_depth_m)) / self.boundary_width)))
+        return {"spindle_rpm": float(rpm), "axial_depth_m": float(axial_depth_m), "samples": int(p.size),
+                "probability_stable": float(np.mean(p)), "standard_error": se,
+                "table_probability_stable": p_table, "holds": bool(np.mean(p) >= self.probability - 2 * se)}
 
 
 def with_engagement(setup, radial_depth_m: float, milling: str):
