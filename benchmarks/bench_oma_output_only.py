@@ -11,6 +11,11 @@ carrying most of the response variance. Cases:
 * ``on_mode``  720 rpm: the 24.0 Hz tooth line inside the 24.8 Hz mode's half-power band;
 * ``extra``    1350 rpm (45 Hz tooth) and a fourth mode above it, 70 Hz / 3 % / 4e6 N/m along (1,1,0).
 
+Two structures unlike the paper's cell (``--cases oblique damped``; the session-11 probes, not in
+the issue's list): ``oblique``, in-plane modes at 30 deg in XY (12 Hz / 4 % / 1.2e6, 26 Hz / 3 % /
+2.5e6) with the Z mode apart at 17 Hz / 5 % / 2.0e6; ``damped``, 9 / 21 / 33 Hz at 8 / 6 / 5 %
+(1e6 / 2e6 / 4e6 N/m) at 45 deg in XY; both at 2700 rpm, accelerations.
+
 Per case: modes found (exactly the true ones?), false modes, frequency and damping errors, the
 coverage of the 95 % jackknife intervals, stiffness errors with the right coefficients and with all
 coefficients 10 % high (is the error inside the stated 95 % interval?), CPU time. Side by side on
@@ -50,12 +55,22 @@ from robot_helpers import shared_dir  # noqa: E402  (the one locator of ../share
 TRUTH = paper_like_model()
 EXTRA = ModalModel([10.5, 24.8, 10.0, 70.0], [0.05, 0.04, 0.05, 0.03], [1.5e6, 3.0e6, 2.0e6, 4.0e6],
                    [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]])
+_C30, _S30, _C45 = np.cos(np.pi / 6), np.sin(np.pi / 6), np.sqrt(0.5)
+OBLIQUE = ModalModel([12.0, 26.0, 17.0], [0.04, 0.03, 0.05], [1.2e6, 2.5e6, 2.0e6],
+                     [[_C30, _S30, 0], [-_S30, _C30, 0], [0, 0, 1]])
+DAMPED = ModalModel([9.0, 21.0, 33.0], [0.08, 0.06, 0.05], [1.0e6, 2.0e6, 4.0e6],
+                    [[_C45, _C45, 0], [-_C45, _C45, 0], [0, 0, 1]])
 CASES = ("none", "tooth", "runout", "on_mode", "extra")
+PROBES = {"oblique": OBLIQUE, "damped": DAMPED}
+
+
+def case_model(case: str) -> ModalModel:
+    return EXTRA if case == "extra" else PROBES.get(case, TRUTH)
 
 
 def case_record(case: str, seed: int, duration_s: float = 20.0, material=None):
     kw = dict(duration_s=duration_s, rng=10_000 + seed, output="acceleration", runout_m=None, material=material)
-    model = TRUTH
+    model = case_model(case)
     if case == "none":
         kw.update(harmonics=False, spindle_rpm=2700.0)
     elif case == "tooth":
@@ -66,7 +81,8 @@ def case_record(case: str, seed: int, duration_s: float = 20.0, material=None):
         kw.update(spindle_rpm=720.0)
     elif case == "extra":
         kw.update(spindle_rpm=1350.0)
-        model = EXTRA
+    elif case in PROBES:
+        kw.update(spindle_rpm=2700.0)
     else:
         raise ValueError(case)
     return synthetic_record(model, **kw), model
@@ -343,7 +359,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--peer-seeds", type=int, default=6)
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES + tuple(PROBES))
     ap.add_argument("--no-hurco", action="store_true")
     ap.add_argument("--ssi-directions", action="store_true",
                     help="SSI's directions for every mode (before session 9; default: the ML refinement's for close modes)")
@@ -361,7 +377,7 @@ def main(argv=None):
             if args.ssi_derivatives:
                 options["ssi_derivatives"] = tuple(args.ssi_derivatives)
             rows = run_ours(case, range(args.seeds), options)
-            model = EXTRA if case == "extra" else TRUTH
+            model = case_model(case)
             summarise(case, rows, model)
             if args.peer_seeds:
                 summarise_peers(case, run_peers(case, range(args.peer_seeds)), model)
