@@ -104,6 +104,9 @@ def test_plan_with_a_posterior_uses_the_chance_constraint(case, capsys):
     assert out["axial_depth_m"] <= lim * (1 + 1e-3)
     if "stability" in out["active_constraints"]:
         assert out["axial_depth_m"] > 0.9 * lim
+    code = main(["plan", str(d / "setup.yaml"), "--model", str(d / "post.yaml"), "--probability", "0.9"])
+    text = capsys.readouterr().out
+    assert code == 0 and f"64 posterior samples solved directly: {check['probability_stable']:.3f}" in text
     code = main(["plan", str(d / "setup.yaml"), "--model", str(d / "post.yaml"), "--probability", "1.5"])
     assert code == 2 and "--probability" in capsys.readouterr().err
 
