@@ -268,12 +268,13 @@ def _cmd_plan(args) -> int:
         text = (f"{p['spindle_rpm']:.0f} rpm, axial depth {1e3 * p['axial_depth_m']:.2f} mm, feed "
                 f"{1e3 * p['feed_per_tooth_m']:.3f} mm/tooth: MRR {1e6 * p['mrr_m3_s']:.2f} cm^3/s; active: "
                 + (", ".join(p["active_constraints"]) or "none"))
-        check = (p.get("learned") or {}).get("check")
+        learned_ = p.get("learned") or {}
+        check = learned_.get("check")
         if check:
             text += (f"\nP(stable) of the planned cut, {check['samples']} posterior samples solved directly: "
                      f"{check['probability_stable']:.3f} +- {check['standard_error']:.3f} (the limit table: "
                      f"{check['table_probability_stable']:.3f})")
-        return "\n".join([text] + [f"warning: {w}" for w in (p.get("learned") or {}).get("warnings", [])])
+        return "\n".join([text] + [f"warning: {w}" for w in learned_.get("warnings", [])])
 
     emit(args, payload, human)
     if result.success:

@@ -40,6 +40,15 @@ def case(tmp_path_factory):
     return d, setup, post
 
 
+def _direct(post, setup, u, rpm):
+    """The limits (m) of the samples ``u`` at the speeds ``rpm``, each solved by ZOA from its own
+    scaled model and coefficients (independently of ``direct_log_limits``), (n_samples, n_rpm)."""
+    return np.array([reference_limits(scaled_model(post.reference, log_f=x[0], log_k=x[1], log_zeta=x[2]),
+                                      setup.tool, setup.cut, scaled_coefficients(post.coefficients, log_kt=x[3],
+                                                                                 log_kr=x[4]),
+                                      np.asarray(rpm, dtype=float), method="zoa") for x in u])
+
+
 def test_chance_limit_is_where_the_predictive_probability_of_direct_limits_falls_to_the_level(case):
     """The 95 % chance depth at a speed is where P(stable), computed from the samples' own limits
     solved directly and the soft boundary, is 0.95 (table interpolation error: 3 %, see
@@ -47,12 +56,7 @@ def test_chance_limit_is_where_the_predictive_probability_of_direct_limits_falls
     _, setup, post = case
     limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.95, max_samples=60)
     rpm = np.array([9500.0, 11000.0])
-    direct = []
-    for u in post.thinned(60).samples:  # the same 60 samples as the chance limit's
-        model = scaled_model(post.reference, log_f=u[0], log_k=u[1], log_zeta=u[2])
-        coef = scaled_coefficients(post.coefficients, log_kt=u[3], log_kr=u[4])
-        direct.append(reference_limits(model, setup.tool, setup.cut, coef, rpm, method="zoa"))
-    direct = np.array(direct)
+    direct = _direct(post, setup, post.thinned(60).samples, rpm)  # the same 60 samples as the chance limit's
     a = limit(rpm)
     s = post.likelihood.scale()
     p_direct = np.mean(1.0 / (1.0 + np.exp(-(np.log(direct) - np.log(a)[None, :]) / s)), axis=0)
@@ -155,11 +159,7 @@ def test_the_chance_limit_checks_its_own_table_and_widens_by_the_larger_error(ca
     thin = post.thinned(400)
     u = thin.samples[np.random.default_rng(0).permutation(thin.samples.shape[0])[:4]]
     r = np.geomspace(*setup.limits.spindle_rpm, 5)
-    direct = []
-    for x in u:
-        model = scaled_model(post.reference, log_f=x[0], log_k=x[1], log_zeta=x[2])
-        coef = scaled_coefficients(post.coefficients, log_kt=x[3], log_kr=x[4])
-        direct.append(reference_limits(model, setup.tool, setup.cut, coef, r, method="zoa"))
+    direct = _direct(post, setup, u, r)
     table = np.log(limit.samples(r))[np.r_[[np.flatnonzero(np.all(thin.samples == x, axis=1))[0] for x in u]]]
     np.testing.assert_allclose(limit.table_error, np.sqrt(np.mean((table - np.log(direct)) ** 2)), rtol=0.05,
                                atol=2e-3)
@@ -190,10 +190,7 @@ def test_the_planned_cut_is_verified_by_directly_solved_samples(case):
     check = limit.verify(rpm, a, samples=40)
     thin = post.thinned(400)
     u = thin.samples[np.random.default_rng(1).permutation(thin.samples.shape[0])[:40]]
-    direct = np.array([reference_limits(scaled_model(post.reference, log_f=x[0], log_k=x[1], log_zeta=x[2]),
-                                        setup.tool, setup.cut,
-                                        scaled_coefficients(post.coefficients, log_kt=x[3], log_kr=x[4]),
-                                        np.array([rpm]), method="zoa")[0] for x in u])
+    direct = _direct(post, setup, u, [rpm])[:, 0]
     p = expit((np.log(direct) - np.log(a)) / post.likelihood.scale())
     assert check["probability_stable"] == pytest.approx(p.mean(), abs=2e-3)
     assert check["standard_error"] == pytest.approx(p.std(ddof=1) / np.sqrt(40), rel=0.05)

@@ -99,9 +99,8 @@ class ProbabilityLobes:
         samples x speeds in memory, not depths x samples x speeds (58 MB for the plot's grid)."""
         a = np.log(np.atleast_1d(np.asarray(axial_depth_m, dtype=float)))
         ll = np.log(self.limits)
-        if not self.scale > 0:
-            return np.array([np.mean(ll > x, axis=0) for x in a]).reshape(a.size, ll.shape[1])
-        return np.array([np.mean(expit((ll - x) / self.scale), axis=0) for x in a]).reshape(a.size, ll.shape[1])
+        kernel = (lambda d: d > 0) if not self.scale > 0 else (lambda d: expit(d / self.scale))
+        return np.array([np.mean(kernel(ll - x), axis=0) for x in a]).reshape(a.size, ll.shape[1])
 
     def limit_quantile(self, p: float) -> np.ndarray:
         """The depth (m, per speed) below which the limit itself lies with probability ``p``: the
@@ -183,19 +182,30 @@ class ChanceLimit:
         n_rpm = int(np.ceil(np.log(self.rpm_range[1] / self.rpm_range[0]) / step)) + 2
         rpm = np.geomspace(*self.rpm_range, n_rpm)
         self._table = _table(self.posterior, setup, rpm, np.full(rpm.size, setup.cut.radial_depth_m),
-                             np.full(rpm.size, setup.cut.milling == "down"), method=method, grid=None)
+                             np.full(rpm.size, setup.cut.milling == "down"), method=self._method, grid=None)
         self.table_error = 0.0
         if check > 0:
-            u = self.posterior.samples[np.random.default_rng(0).permutation(self.posterior.samples.shape[0])[:check]]
+            u = self._draw(check, seed=0)
             r = np.geomspace(*self.rpm_range, int(check_speeds))
-            post = self.posterior
-            direct = direct_log_limits(post.reference, setup.tool, setup.cut, post.coefficients, r,
-                                       np.full(r.size, setup.cut.radial_depth_m),
-                                       np.full(r.size, setup.cut.milling == "down"), u,
-                                       method=method or post.method, sdm_steps=self._table.grid.sdm_steps)
-            self.table_error = float(np.sqrt(np.mean((post.log_limits(self._at(r), samples=u) - direct) ** 2)))
+            err = self.posterior.log_limits(self._at(r), samples=u) - self._direct(r, u)
+            self.table_error = float(np.sqrt(np.mean(err ** 2)))
         lk = self.posterior.likelihood
         self.boundary_width = float(lk.scale(max(lk.model_error, self.table_error)))
+
+    def _draw(self, n: int, *, seed: int) -> np.ndarray:
+        """``n`` of the samples (log-multipliers), drawn without replacement, reproducibly."""
+        samples = self.posterior.samples
+        return samples[np.random.default_rng(seed).permutation(samples.shape[0])[:int(n)]]
+
+    def _direct(self, rpm, u) -> np.ndarray:
+        """The log limits of the samples ``u`` at the speeds ``rpm`` solved directly (no table),
+        (n_samples, n_rpm)."""
+        rpm = np.atleast_1d(np.asarray(rpm, dtype=float))
+        post, setup = self.posterior, self._setup
+        return direct_log_limits(post.reference, setup.tool, setup.cut, post.coefficients, rpm,
+                                 np.full(rpm.size, setup.cut.radial_depth_m),
+                                 np.full(rpm.size, setup.cut.milling == "down"), u, method=self._method,
+                                 sdm_steps=self._table.grid.sdm_steps)
 
     def _at(self, rpm) -> LimitTable:
         """The range's table read at the speeds ``rpm`` (clipped to the range)."""
@@ -215,14 +225,8 @@ class ChanceLimit:
         error to widen by: these limits are direct), with the Monte Carlo standard error of that
         mean. ``holds``: not below the level by more than two standard errors. The plan's speed is
         usually on a lobe's peak, where a table interpolates least well; this is where it matters."""
-        post = self.posterior
-        u = post.samples[np.random.default_rng(1).permutation(post.samples.shape[0])[:int(samples)]]
-        cut = self._setup.cut
-        direct = direct_log_limits(post.reference, self._setup.tool, cut, post.coefficients, np.array([float(rpm)]),
-                                   np.array([cut.radial_depth_m]), np.array([cut.milling == "down"]), u,
-                                   method=self._method, sdm_steps=self._table.grid.sdm_steps)[:, 0]
-        lk = post.likelihood
-        p = expit((direct - np.log(axial_depth_m)) / lk.scale())
+        direct = self._direct(rpm, self._draw(samples, seed=1))[:, 0]
+        p = expit((direct - np.log(axial_depth_m)) / self.posterior.likelihood.scale())
         se = float(np.std(p, ddof=1) / np.sqrt(p.size)) if p.size > 1 else float("nan")
         p_table = float(np.mean(expit((np.log(self.samples([rpm])[:, 0]) - np.log(axial_depth_m)) / self.boundary_width)))
         return {"spindle_rpm": float(rpm), "axial_depth_m": float(axial_depth_m), "samples": int(p.size),
