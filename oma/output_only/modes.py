@@ -70,7 +70,8 @@ class OutputOnlyModes:
     shapes : ndarray of complex, shape (3, n_modes)
         Complex shapes in the signal's unit (zero rows for axes not recorded).
     support : ndarray, shape (n_modes,)
-        Fraction of model orders with a stable pole in the mode's cluster.
+        Fraction of model orders with a stable pole in the mode's cluster (0 for a mode the
+        refinement's residual scan added: no SSI cluster).
     harmonics : tuple of ResponseHarmonics
         One per record.
     direction_se_rad : ndarray, shape (n_modes,)
@@ -303,9 +304,24 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     if ml_refine and f_hat.size:
         ev = {} if ml_evidence else None
         out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
-                         uncertainty=uncertainty, **(ml_options or {}))
+                         uncertainty=uncertainty, **{"band_hz": (lo, hi), "line_tolerance": HARMONIC_TOLERANCE,
+                                                       "line_max_damping": HARMONIC_MAX_DAMPING, **(ml_options or {})})
         # a mode whose likelihood gain is under its BIC penalty is not supported by the data: the
         # refinement dropped it and refitted its group without it
+        n_new = out[0].size - f_hat.size
+        if n_new:
+            # modes the refinement's residual scan added (no SSI cluster): their "SSI" values are
+            # the refinement's, with no SSI error (so never taken for "moved"; no interval unless
+            # the refinement's information gives one)
+            new = slice(f_hat.size, None)
+            f_hat, z_hat = np.append(f_hat, out[0][new]), np.append(z_hat, out[1][new])
+            shapes, support = np.column_stack([shapes, out[2][:, new]]), np.append(support, np.zeros(n_new))
+            f_se, z_se = np.append(f_se, np.full(n_new, np.nan)), np.append(z_se, np.full(n_new, np.nan))
+            u_se = np.append(u_se, np.full(n_new, np.nan))
+            for k in range(f_hat.size - n_new, f_hat.size):
+                gain = f" (likelihood gain {ev[k][0]:.1f} against penalty {ev[k][1]:.1f})" if ev else ""
+                warnings.append(f"mode at {f_hat[k]:.2f} Hz found by the refinement's scan of what its group's "
+                                f"model left unexplained, not by SSI{gain}")
         weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
         for k in np.flatnonzero(weak):
             warnings.append(f"stable SSI cluster at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
@@ -347,6 +363,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         warnings.append(f"pole at {f_hat[k]:.2f} Hz ({100 * z_hat[k]:.0f} % damping) not reported as a mode: its "
                         f"half-power band crosses the edge of the analysed band {lo:g}-{hi:g} Hz (widen the band "
                         "to identify it)")
+    inside = np.flatnonzero(inside)
+    inside = inside[np.argsort(f_hat[inside], kind="stable")]   # added modes come last: in order of frequency
     f_hat, z_hat, shapes, support = f_hat[inside], z_hat[inside], shapes[:, inside], support[inside]
     f_se, z_se, u_se, from_information = f_se[inside], z_se[inside], u_se[inside], from_information[inside]
     full_shapes = np.zeros((3, f_hat.size), dtype=complex)
@@ -448,10 +466,11 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
     f, z, u, fitted, rep, se = refine_modes_ml(unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines,
                                                segments=jackknife_cuts, evidence=evidence, direction_scale=ch,
                                                **options)
-    out = np.array(shapes, dtype=complex)
+    out = np.zeros((shapes.shape[0], f.size), dtype=complex)
+    out[:, :f_hat.size] = shapes
     for k in np.flatnonzero(fitted):
         v = u[:, k] * ch
-        out[:, k] = v / np.linalg.norm(v) * np.linalg.norm(shapes[:, k])
+        out[:, k] = v / np.linalg.norm(v) * (np.linalg.norm(shapes[:, k]) if k < f_hat.size else 1.0)
     if uncertainty == "information":
         return f, z, out, fitted, (se[0], z * se[1], se[2])
     if rep is None:
