@@ -225,7 +225,9 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     ml_evidence : bool
         With ``ml_refine``: every mode must raise the Whittle likelihood of its band by more
         than the BIC penalty of its parameters (the group refitted without it, both with the
-        coherent tail model), else it is dropped with a warning.
+        coherent tail model), else it is dropped with a warning. The refinement also scans each
+        group for a mode SSI formed no cluster for and adds it under the same gate (session 13;
+        ``ml_options={'add_missing': None}`` turns the scan off).
     uncertainty : {'information', 'jackknife'}
         Standard errors of the refined modes: from the information at the optimum (default;
         the larger of the inverse Fisher information and the sandwich), or the delete-one-segment
@@ -306,8 +308,6 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
                          uncertainty=uncertainty, **{"band_hz": (lo, hi), "line_tolerance": HARMONIC_TOLERANCE,
                                                        "line_max_damping": HARMONIC_MAX_DAMPING, **(ml_options or {})})
-        # a mode whose likelihood gain is under its BIC penalty is not supported by the data: the
-        # refinement dropped it and refitted its group without it
         n_new = out[0].size - f_hat.size
         if n_new:
             # modes the refinement's residual scan added (no SSI cluster): their "SSI" values are
@@ -322,6 +322,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                 gain = f" (likelihood gain {ev[k][0]:.1f} against penalty {ev[k][1]:.1f})" if ev else ""
                 warnings.append(f"mode at {f_hat[k]:.2f} Hz found by the refinement's scan of what its group's "
                                 f"model left unexplained, not by SSI{gain}")
+        # a mode whose likelihood gain is under its BIC penalty is not supported by the data: the
+        # refinement dropped it and refitted its group without it
         weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
         for k in np.flatnonzero(weak):
             warnings.append(f"stable SSI cluster at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
