@@ -25,7 +25,26 @@ from .._arrays import readonly as _ro
 from ..harmonics import harmonic_basis, harmonic_frequencies, refine_spindle_frequency
 from .._linalg import lstsq_normal
 
-__all__ = ["ResponseHarmonics", "remove_response_harmonics"]
+__all__ = ["ResponseHarmonics", "remove_response_harmonics", "at_milling_line"]
+
+#: A pole within this relative distance of a milling line and less damped than
+#: :data:`HARMONIC_MAX_DAMPING` is taken for the line (:func:`at_milling_line`).
+HARMONIC_TOLERANCE = 0.005
+HARMONIC_MAX_DAMPING = 0.01
+
+
+def at_milling_line(freq_hz, damping, lines_hz) -> np.ndarray:
+    """Whether each pole (``freq_hz``, ``damping``) is a milling line's remainder rather than a
+    mode: within :data:`HARMONIC_TOLERANCE` of a line of ``lines_hz`` and damped less than
+    :data:`HARMONIC_MAX_DAMPING` (a sinusoid the regression left behind, e.g. a wandering spindle,
+    reads as an undamped pole)."""
+    f = np.atleast_1d(np.asarray(freq_hz, dtype=float))
+    z = np.atleast_1d(np.asarray(damping, dtype=float))
+    lines = np.asarray(lines_hz, dtype=float).ravel()
+    if lines.size == 0:
+        return np.zeros(f.size, dtype=bool)
+    near = np.min(np.abs(lines[None, :] / f[:, None] - 1.0), axis=1) < HARMONIC_TOLERANCE
+    return near & (z < HARMONIC_MAX_DAMPING)
 
 
 @dataclass(frozen=True)

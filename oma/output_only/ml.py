@@ -40,6 +40,8 @@ import numpy as np
 
 from scipy.linalg import eigh
 
+from .harmonics import at_milling_line
+from .ssi import same_mode
 from .whittle import _Model, _fisher, _free_c, _nll, _residual_columns, _response, _spectrum, _tril, _unpack
 
 __all__ = ["refine_modes_ml"]
@@ -385,21 +387,20 @@ def _mode_gain(fits, fit, j: int, x):
     return float(fun0 - ref[3]) if np.isfinite(fun0) and fun0 < 1e30 else None
 
 
-def _new_mode_apart(fit, g, f0, z0, lines, line_tolerance, line_max_damping) -> bool:
+def _new_mode_apart(fit, g, f0, z0, lines) -> bool:
     """Whether the last mode of a group's ``fit`` (one the scan added) is a mode of its own: not
     another group's (outside twice their half-power bands), not a second copy of one of its
-    group's (within 2 % in frequency and ``|cos| > 0.95``, MAC 0.9, between their directions: on
-    real records a peak that is not quite the model's shape leaves an excess beside it), not a
-    milling line's remainder (lightly damped at a line)."""
+    group's (:func:`oma.output_only.ssi.same_mode`, SSI's rule for its clusters: on real records a
+    peak that is not quite the model's shape leaves an excess beside it), not a milling line's
+    remainder (:func:`oma.output_only.harmonics.at_milling_line`, SSI's rule too)."""
     f, z, u = fit[0], fit[1], fit[2]
     fc, zc = f[-1], z[-1]
     others = np.setdiff1d(np.arange(f0.size), g)
     if np.any(np.abs(fc - f0[others]) < 2.0 * z0[others] * f0[others]):
         return False
-    near = np.abs(f[:-1] / fc - 1.0) < 0.02
-    if np.any(near & (np.abs(u[:-1] @ u[-1]) / np.linalg.norm(u[:-1], axis=1) / np.linalg.norm(u[-1]) > 0.95)):
+    if np.any(same_mode(fc, u[-1], f[:-1], u[:-1].T)):
         return False
-    return not (lines.size and np.min(np.abs(lines / fc - 1.0)) < line_tolerance and zc < line_max_damping)
+    return not at_milling_line(fc, zc, lines)[0]
 
 
 def band_groups(freq_hz, damping, *, half_width: float = 6.0, min_half_width_hz: float = 1.0) -> list[list[int]]:
@@ -427,8 +428,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     lines_hz=(), half_width: float = 6.0, min_half_width_hz: float = 1.0,
                     line_guard_hz: float = 0.1, max_iter: int = 40, evidence: dict | None = None,
                     segments=None, residual_terms="auto", direction_scale=None,
-                    add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf), line_tolerance: float = 0.005,
-                    line_max_damping: float = 0.01):
+                    add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf)):
     """Whittle-ML frequency, damping and direction of output-only modes (see the module docstring).
 
     Parameters
@@ -477,10 +477,6 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         None: no scan.
     band_hz : (float, float)
         The scan's candidates lie inside this band (the analysed one).
-    line_tolerance, line_max_damping : float
-        A scanned mode damped less than ``line_max_damping`` within ``line_tolerance`` (relative)
-        of a milling line is the line's remainder (a wandering spindle), not a mode: SSI's rule for
-        its clusters (:data:`oma.output_only.modes.HARMONIC_TOLERANCE`).
     residual_terms : {'auto', False, 'known', 'background', True} or a sequence of them
         The tails of the modes outside a group's band: a constant background (False); the
         responses of the other modes found (``'known'``: each ``u_j / D_j(w)`` at its estimated
@@ -652,8 +648,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 if chain_c is not None:
                     fits_c, fit_c = chain_c
                     gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c)
-                apart = chain_c is not None and _new_mode_apart(fit_c, g_c, f0, z0, lines, line_tolerance,
-                                                                line_max_damping)
+                apart = chain_c is not None and _new_mode_apart(fit_c, g_c, f0, z0, lines)
                 if gain is not None and apart and gain > penalty \
                         and not np.any(np.abs(fit_c[0] - f0[g_c]) > hw[g_c] / 2) and not np.any(fit_c[1] > 0.5):
                     f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])

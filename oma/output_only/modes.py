@@ -26,17 +26,13 @@ from scipy import stats
 from .._arrays import readonly as _ro
 from .._linalg import single_threaded_blas
 from ..signals import integrate_frequency_domain
-from .harmonics import ResponseHarmonics, remove_response_harmonics
+from .harmonics import ResponseHarmonics, at_milling_line, remove_response_harmonics
 from .ml import band_groups, refine_modes_ml
-from .ssi import StabilisedModes, mac, match_modes, segment_correlations, select_modes, ssi_poles
+from .ssi import StabilisedModes, mac, match_modes, same_mode, segment_correlations, select_modes, ssi_poles
 from .uncertainty import jackknife, segment_bounds, t_interval
 
 __all__ = ["OutputOnlyModes", "output_only_modes", "real_direction"]
 
-#: A cluster within this relative distance of a milling line and less damped than
-#: :data:`HARMONIC_MAX_DAMPING` is taken for the line.
-HARMONIC_TOLERANCE = 0.005
-HARMONIC_MAX_DAMPING = 0.01
 #: See ``ml_refine`` in :func:`output_only_modes`.
 ML_MAX_SHIFT = 2.0
 #: Modes of different SSI views (``ssi_derivatives``) whose bands ``f (1 +- w zeta)`` overlap
@@ -274,10 +270,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     fse_all, zse_all, use_all, view_all = fse_all[order_], zse_all[order_], use_all[order_], view_all[order_]
     keep = np.ones(sel.n_modes, dtype=bool)
     lines = np.concatenate([h.freq_hz for h in harmonics]) if harmonics else np.zeros(0)
-    for k in range(sel.n_modes):
-        if lines.size and np.min(np.abs(lines / sel.freq_hz[k] - 1.0)) < HARMONIC_TOLERANCE \
-                and sel.damping_ratio[k] < HARMONIC_MAX_DAMPING:
-            keep[k] = False
+    keep &= ~at_milling_line(sel.freq_hz, sel.damping_ratio, lines)
     harmonic = ~keep
     if len(views) > 1:
         keep &= _choose_views(sel.freq_hz, sel.damping_ratio, sel.support, view_all, keep)
@@ -292,8 +285,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         if not keep[a]:
             continue
         for b in order[a_i + 1:]:
-            if keep[b] and abs(sel.freq_hz[b] / sel.freq_hz[a] - 1.0) < 0.02 \
-                    and mac(sel.shapes[:, a:a + 1], sel.shapes[:, b:b + 1])[0, 0] > 0.9:
+            if keep[b] and same_mode(sel.freq_hz[a], sel.shapes[:, a], sel.freq_hz[b], sel.shapes[:, b:b + 1])[0]:
                 keep[b] = False
     rejected = sel.freq_hz[harmonic]
     f_hat, z_hat, shapes, support = sel.freq_hz[keep], sel.damping_ratio[keep], sel.shapes[:, keep], sel.support[keep]
@@ -306,8 +298,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     if ml_refine and f_hat.size:
         ev = {} if ml_evidence else None
         out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
-                         uncertainty=uncertainty, **{"band_hz": (lo, hi), "line_tolerance": HARMONIC_TOLERANCE,
-                                                       "line_max_damping": HARMONIC_MAX_DAMPING, **(ml_options or {})})
+                         uncertainty=uncertainty, **{"band_hz": (lo, hi), **(ml_options or {})})
         n_new = out[0].size - f_hat.size
         if n_new:
             # modes the refinement's residual scan added (no SSI cluster): their "SSI" values are

@@ -32,7 +32,7 @@ from scipy.linalg import solve_triangular
 
 from .._arrays import readonly as _ro
 
-__all__ = ["output_correlations", "segment_correlations", "ssi_poles", "SSIPoles", "StabilisedModes", "select_modes", "mac",
+__all__ = ["output_correlations", "segment_correlations", "ssi_poles", "SSIPoles", "StabilisedModes", "select_modes", "mac", "same_mode",
            "match_modes"]
 
 
@@ -85,6 +85,16 @@ def mac(a, b) -> np.ndarray:
     num = np.abs(a.conj().T @ b) ** 2
     den = np.outer(np.sum(np.abs(a) ** 2, axis=0), np.sum(np.abs(b) ** 2, axis=0))
     return num / np.maximum(den, np.finfo(float).tiny)
+
+
+def same_mode(freq_hz, shape, other_freq_hz, other_shapes) -> np.ndarray:
+    """Whether each of the ``other`` modes (frequencies (n,), shapes (l, n)) is the mode
+    (``freq_hz``, ``shape`` (l,)) seen twice: within 2 % of its frequency and MAC above 0.9."""
+    other_freq_hz = np.atleast_1d(np.asarray(other_freq_hz, dtype=float))
+    if other_freq_hz.size == 0:
+        return np.zeros(0, dtype=bool)
+    close = np.abs(other_freq_hz / float(freq_hz) - 1.0) < 0.02
+    return close & (mac(np.asarray(shape).reshape(-1, 1), other_shapes)[0] > 0.9)
 
 
 @dataclass(frozen=True)
