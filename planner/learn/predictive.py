@@ -225,10 +225,12 @@ class ChanceLimit:
         error to widen by: these limits are direct), with the Monte Carlo standard error of that
         mean. ``holds``: not below the level by more than two standard errors. The plan's speed is
         usually on a lobe's peak, where a table interpolates least well; this is where it matters."""
+        lk, log_a = self.posterior.likelihood, np.log(axial_depth_m)
         direct = self._direct(rpm, self._draw(samples, seed=1))[:, 0]
-        p = expit((direct - np.log(axial_depth_m)) / self.posterior.likelihood.scale())
+        p = 1.0 - lk.p_chatter(log_a - direct)
         se = float(np.std(p, ddof=1) / np.sqrt(p.size)) if p.size > 1 else float("nan")
-        p_table = float(np.mean(expit((np.log(self.samples([rpm])[:, 0]) - np.log(axial_depth_m)) / self.boundary_width)))
+        table = np.log(self.samples([rpm])[:, 0])
+        p_table = float(np.mean(1.0 - lk.p_chatter(log_a - table, model_error=max(lk.model_error, self.table_error))))
         return {"spindle_rpm": float(rpm), "axial_depth_m": float(axial_depth_m), "samples": int(p.size),
                 "probability_stable": float(np.mean(p)), "standard_error": se,
                 "table_probability_stable": p_table, "holds": bool(np.mean(p) >= self.probability - 2 * se)}
