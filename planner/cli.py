@@ -104,10 +104,10 @@ def _cmd_identify_output_only(args) -> int:
     written = bool(args.output) and result.scaled
     if written:
         write_modal_model(result.model, args.output)
-    if args.plot:
-        save_figure(result.plot()[0], args.plot)
     elif args.output:
         payload["warnings"].append(f"no model written to {args.output}: the modes are not scaled")
+    if args.plot:
+        save_figure(result.plot()[0], args.plot)
 
     def human(p):
         m = result.model

@@ -289,6 +289,12 @@ def test_cli_output_only_json_with_force_comparison(tmp_path, capsys):
     # both ways carry standard errors: the differences in combined sds are finite and modest
     assert all(c["frequency_z"] is not None and abs(c["frequency_z"]) < 5 for c in comp)
     assert code in (0, 1) and ((tmp_path / "m.yaml").exists() == (code == 0))
+    # the model file and the "no model written" warning exclude each other (they did not: the warning
+    # hung on the --plot branch and was given whenever no plot was asked for)
+    assert (tmp_path / "m.yaml").exists() != any("no model written" in w for w in payload["warnings"])
+    main(["identify", str(tmp_path / "rec"), "--output-only", "-o", str(tmp_path / "m2.yaml")])
+    text = capsys.readouterr().out
+    assert ("model written to" in text) == (tmp_path / "m2.yaml").exists() != ("no model written" in text)
     assert main(["identify", str(tmp_path / "rec"), "--output-only", "--coefficient-uncertainty", "2"]) == 2
     assert "coefficient-uncertainty" in capsys.readouterr().err
     assert main(["identify", str(tmp_path / "rec"), "--output-only", "--reference", "x.csv"]) == 2
