@@ -20,6 +20,7 @@ from ..errors import RecordError
 from ..modal import ModalModel
 from ..record import Record
 from ..signals import window_slice
+from .background import ANISOTROPY_LOG_SD, BackgroundLevel, background_level, scale_by_background
 from .modes import OutputOnlyModes, output_only_modes
 from .scaling import StiffnessScaling, scale_modes, tooth_force_harmonics, with_spindle
 
@@ -52,6 +53,15 @@ class OutputOnlyIdentification:
     warnings : tuple of str
     quantity : str
         What the records carried.
+    background : BackgroundLevel or None
+        The background force's level from the modes the lines scale, when it scaled a mode they
+        could not (:mod:`oma.output_only.background`).
+    scaled_by : tuple of str
+        Per mode: ``'lines'``, ``'background'`` (the lines scale it poorly) or ``'none'``.
+    sample_rate_hz : float
+    lines_scaling : StiffnessScaling or None
+        With ``background``: what the lines alone gave (``stiffness`` has the background's values
+        for the modes it scaled).
     """
 
     model: ModalModel
@@ -61,6 +71,10 @@ class OutputOnlyIdentification:
     trusted: bool
     warnings: tuple
     quantity: str
+    background: BackgroundLevel | None = field(default=None, repr=False)
+    scaled_by: tuple = ()
+    sample_rate_hz: float = float("nan")
+    lines_scaling: StiffnessScaling | None = field(default=None, repr=False)
 
     @property
     def scaled(self) -> bool:
@@ -81,8 +95,13 @@ class OutputOnlyIdentification:
         unc = self.stiffness.to_dict() if self.stiffness is not None else [
             {"stiffness_N_m": None, "relative_sd": None, "interval_N_m": [None, None]} for _ in range(self.model.n_modes)]
         out["stiffness_uncertainty"] = unc
-        for m, s in zip(out["modes"], unc):
+        lines = self.lines_scaling.to_dict() if self.lines_scaling is not None else [None] * len(unc)
+        for m, s, by, by_lines in zip(out["modes"], unc, self.scaled_by or ("none",) * len(unc), lines):
+            s["scaled_by"] = by
+            if by == "background" and by_lines is not None:
+                s["lines"] = {key: by_lines[key] for key in ("stiffness_N_m", "statistical_relative_sd")}
             m["stiffness_uncertainty"] = s
+        out["background_force"] = None if self.background is None else self.background.to_dict(self.sample_rate_hz)
         if self.stiffness is not None:
             out["scaling_misfit"] = float(self.stiffness.misfit)
             out["scaling_lines_hz"] = [float(f) for f in self.stiffness.lines_hz]
@@ -101,7 +120,7 @@ def _motion(record: Record):
 def identify_output_only(records: Sequence[Record], *, scaling: str = "force_model",
                          coefficient_relative_sd: float = 0.15, band_hz=(4.0, 100.0), n_segments: int = 10,
                          level: float = 0.95, refine_harmonics: bool = True, max_line_hz: float | None = None,
-                         direction_sd: float | None = None,
+                         direction_sd: float | None = None, background_anisotropy: float | None = ANISOTROPY_LOG_SD,
                          **mode_options) -> OutputOnlyIdentification:
     """Identify the tool-tip modal model from the vibration channels alone.
 
@@ -123,6 +142,11 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         Jackknife segments.
     level : float
         Coverage of all intervals.
+    background_anisotropy : float or None
+        A mode the tooth-passing lines scale poorly is also scaled by the background force's level
+        found from the modes they scale well, allowing this log standard deviation of that level
+        between directions (:mod:`oma.output_only.background`; default
+        :data:`~oma.output_only.background.ANISOTROPY_LOG_SD`). None: not done.
     """
     if scaling not in ("force_model", "measured_force"):
         raise ValueError(f"scaling must be 'force_model' or 'measured_force', not {scaling!r}")
@@ -166,6 +190,9 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                             "electrical line) or a very lightly damped mode; robot modes have 2-10 %")
     stiffness = None
     used = "none"
+    background = None
+    lines_scaling = None
+    by_background = np.zeros(modes.n_modes, dtype=bool)
     if modes.n_modes == 0:
         warnings.append("no mode found in the response")
     else:
@@ -183,6 +210,17 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                     f"from it or force it too weakly to scale it well (stiffness uncertainty "
                     + (f"{100 * sd:.0f} %" if np.isfinite(sd) and sd < 100 else "unbounded")
                     + " from the data alone)")
+            lines_scaling = stiffness
+            if background_anisotropy is not None and np.any(stiffness.too_far):
+                background = background_level(stiffness, modes.input_level, modes.input_level_log_se,
+                                              anisotropy_log_sd=background_anisotropy)
+                if background is not None:
+                    stiffness, by_background = scale_by_background(stiffness, background, modes.input_level,
+                                                                   modes.input_level_log_se, level=level)
+                if not np.any(by_background):
+                    background = None
+                else:
+                    warnings += _background_warnings(background, modes, stiffness, by_background, fs)
             if stiffness.misfit > MAX_LINE_MISFIT:
                 warnings.append(f"the response lines disagree with the force model by more than their noise "
                                 f"(reduced chi-square {stiffness.misfit:.1f}): coefficients, runout or a mode "
@@ -205,8 +243,31 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         source={"method": "oma-output-only-ssi-cov", "scaling": used, "records": names, "trusted": trusted},
     ) if modes.n_modes else ModalModel(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)),
                                        source={"method": "oma-output-only-ssi-cov", "records": names})
+    scaled_by = tuple("none" if not np.isfinite(kk) else "background" if bg else "lines"
+                      for kk, bg in zip(k, by_background))
     return OutputOnlyIdentification(model=model, modes=modes, scaling=used, stiffness=stiffness, trusted=trusted,
-                                    warnings=tuple(warnings), quantity=quantity)
+                                    warnings=tuple(warnings), quantity=quantity, background=background,
+                                    scaled_by=scaled_by, sample_rate_hz=fs,
+                                    lines_scaling=lines_scaling if background is not None else None)
+
+
+def _background_warnings(background: BackgroundLevel, modes: OutputOnlyModes, stiffness: StiffnessScaling,
+                         by_background, fs: float) -> list[str]:
+    """What the user must know about modes scaled by the background's level."""
+    ref = ", ".join(f"{modes.freq_hz[r]:.2f} Hz {background.per_mode_psd_N2_Hz[r] * fs:.0f} N^2"
+                    for r in background.reference)
+    out = []
+    for t in np.flatnonzero(by_background):
+        out.append(f"mode at {modes.freq_hz[t]:.2f} Hz scaled by the background force's level instead of the lines: "
+                   f"assumes the background force along it is as strong as along the modes the lines scale "
+                   f"(as white-noise variances: {ref}); stiffness uncertainty "
+                   f"{100 * stiffness.statistical_relative_sd[t]:.0f} % without the coefficients', of which "
+                   f"{100 * background.anisotropy_log_sd / 2:.0f} % for that assumption, which the record cannot check")
+    if not background.consistent:
+        out.append("the background force's level differs between the modes the lines scale by more than their "
+                   f"errors and a {100 * background.anisotropy_log_sd:.0f} % spread explain: the modes scaled by it are "
+                   "doubtful")
+    return out
 
 
 def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coef_sd, level, max_line_hz,

@@ -36,15 +36,18 @@ likelihood gate as every other (session 13).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from scipy.linalg import eigh
 
 from .harmonics import at_milling_line
 from .ssi import same_mode
-from .whittle import _Model, _fisher, _free_c, _nll, _residual_columns, _response, _spectrum, _tril, _unpack
+from .whittle import (_Model, _fisher, _free_c, _input_level, _nll, _residual_columns, _response, _spectrum, _tril,
+                      _unpack)
 
-__all__ = ["refine_modes_ml"]
+__all__ = ["refine_modes_ml", "RefinedModes"]
 
 #: Excess of the residual scan (:func:`_missing_mode`: the largest generalised eigenvalue less 1,
 #: in units of its noise ``1/sqrt(n_eff)``) above which a group is refitted with one more mode.
@@ -296,9 +299,10 @@ def _n_params(mod: _Model) -> int:
     return 2 * m + m * (l - 1) + _free_c(mod)[0].size + (l * (l + 1) // 2 if mod.noise else 0)
 
 
-def _information_se(p, mod: _Model, x, u, direction_scale) -> np.ndarray:
-    """Standard errors of a group's frequencies (Hz), log damping ratios and direction angles (rad)
-    at its optimum ``p``, shape (3, m): per parameter the larger of the model-based variance (the
+def _information_se(p, mod: _Model, x, u, direction_scale, derivative: int = 0) -> np.ndarray:
+    """Standard errors of a group's frequencies (Hz), log damping ratios, direction angles (rad)
+    and log input levels (:func:`oma.output_only.whittle._input_level`) at its optimum ``p``,
+    shape (4, m): per parameter the larger of the model-based variance (the
     inverse Fisher information, all parameters of the group jointly, its input covariance and
     tails included) and the robust one (the sandwich ``J^-1 (sum_k g_k g_k^T) J^-1`` of the
     bins' scores ``g_k``, which stays valid when the spectral model is misspecified: Huber 1967,
@@ -317,7 +321,8 @@ def _information_se(p, mod: _Model, x, u, direction_scale) -> np.ndarray:
     jinv = np.linalg.pinv(_fisher(p, mod), rcond=1e-12, hermitian=True)
     g = _nll(p, mod, x, per_bin=True)[1]
     sandwich = jinv @ (g.T @ g) @ jinv
-    out = np.full((3, m), np.nan)
+    out = np.full((4, m), np.nan)
+    grad_level = _input_level(p, mod, derivative, direction_scale)[1]
     f0, z0 = mod.ref
     norms = _unpack(p, mod).norm  # of the raw direction vectors: their length is not identified
     for cov in (jinv, sandwich):
@@ -333,6 +338,7 @@ def _information_se(p, mod: _Model, x, u, direction_scale) -> np.ndarray:
             jac = (np.eye(l) - np.outer(w, w)) * direction_scale[None, :] / (np.linalg.norm(du) * norms[r])
             angle_var = np.trace(jac @ cov[i:i + l, i:i + l] @ jac.T)
             out[2, r] = np.fmax(out[2, r], np.sqrt(max(angle_var, 0.0)))
+        out[3] = np.fmax(out[3], np.sqrt(np.maximum(np.einsum("ri,ij,rj->r", grad_level, cov, grad_level), 0.0)))
     return out
 
 
@@ -424,6 +430,18 @@ def band_groups(freq_hz, damping, *, half_width: float = 6.0, min_half_width_hz:
     return groups
 
 
+class RefinedModes(NamedTuple):
+    """What :func:`refine_modes_ml` returns (see there)."""
+
+    freq_hz: np.ndarray
+    damping: np.ndarray
+    directions: np.ndarray
+    fitted: np.ndarray
+    replicates: np.ndarray | None
+    standard_errors: np.ndarray
+    input_level: np.ndarray
+
+
 def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directions, *, derivative: int = 2,
                     lines_hz=(), half_width: float = 6.0, min_half_width_hz: float = 1.0,
                     line_guard_hz: float = 0.1, max_iter: int = 40, evidence: dict | None = None,
@@ -502,10 +520,14 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     replicates : ndarray, shape (3, n_segments, m) or None
         With ``segments``: frequency, damping and the angle (rad) of the direction from the
         full-record one, per segment (NaN where not fitted).
-    standard_errors : ndarray, shape (3, m)
+    standard_errors : ndarray, shape (4, m)
         From the information at the optimum (:func:`_information_se`): frequency (Hz), log
-        damping, and the direction's angle (rad, in the channels times ``direction_scale``); NaN
-        where not fitted.
+        damping, the direction's angle (rad, in the channels times ``direction_scale``) and the
+        log input level; NaN where not fitted.
+    input_level : ndarray, shape (m,)
+        Each mode's input level in the channels times ``direction_scale``, as displacement
+        (:func:`oma.output_only.whittle._input_level`: ``E|u . F|^2 / k^2`` per Hz, two-sided);
+        NaN where not fitted.
     """
     f0 = np.asarray(freq_hz, dtype=float)
     z0 = np.asarray(damping, dtype=float)
@@ -515,10 +537,11 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     f_out, z_out, u_out = f0.copy(), z0.copy(), u0.copy()
     ok = np.zeros(f0.size, dtype=bool)
     reps = None if segments is None else np.full((3, len(segments), f0.size), np.nan)
-    se = np.full((3, f0.size), np.nan)
+    se = np.full((4, f0.size), np.nan)
+    level = np.full(f0.size, np.nan)
     dscale = np.ones(l) if direction_scale is None else np.asarray(direction_scale, dtype=float)
     if f0.size == 0:
-        return f_out, z_out, u_out, ok, reps, se
+        return RefinedModes(f_out, z_out, u_out, ok, reps, se, level)
 
     def spectra(rs):
         out = []
@@ -654,7 +677,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])
                     u_out = np.column_stack([u_out, u0[:, -1]])
                     ok, dropped, added = np.append(ok, False), np.append(dropped, False), np.append(added, True)
-                    se = np.column_stack([se, np.full(3, np.nan)])
+                    se = np.column_stack([se, np.full(4, np.nan)])
+                    level = np.append(level, np.nan)
                     if reps is not None:
                         reps = np.concatenate([reps, np.full((3, reps.shape[1], 1), np.nan)], axis=2)
                     if evidence is not None:
@@ -671,7 +695,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         for j, k in enumerate(g):
             uk = u[j] * scale / np.linalg.norm(u[j] * scale)
             u_out[:, k] = uk if uk @ u0[:, k] >= 0 else -uk
-        se[:, g] = _information_se(px, mod, x, u, dscale * scale)
+        se[:, g] = _information_se(px, mod, x, u, dscale * scale, derivative)
+        level[g] = _input_level(px, mod, derivative, dscale * scale)[0]
         if gapped:
             # the information is the expected one (it depends on the parameters, not the data):
             # every replicate starts from the full-record optimum, so from the same matrix
@@ -690,4 +715,4 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     if evidence is not None:
         evidence["dropped"] = dropped
         evidence["added"] = added
-    return f_out, z_out, u_out, ok, reps, se
+    return RefinedModes(f_out, z_out, u_out, ok, reps, se, level)

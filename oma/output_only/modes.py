@@ -78,6 +78,13 @@ class OutputOnlyModes:
     n_segments : int
     level : float
     warnings : tuple of str
+    input_level, input_level_log_se : ndarray, shape (n_modes,)
+        The level of each mode's white input from the refinement (NaN where it did not fit the
+        mode): ``P_r`` with the mode's displacement spectrum ``u_r u_r^T P_r / |1 - (f/f_r)^2 + 2 i
+        zeta_r f/f_r|^2`` (two-sided, m^2/Hz), i.e. ``E|u_r . F|^2 / k_r^2`` per Hz, and the
+        standard error of its logarithm (the refinement's information). With a stiffness,
+        ``P_r k_r^2`` is the background force's power spectral density along ``u_r``
+        (:mod:`oma.output_only.background`).
     """
 
     freq_hz: np.ndarray
@@ -96,10 +103,16 @@ class OutputOnlyModes:
     n_segments: int = 0
     level: float = 0.95
     warnings: tuple = ()
+    input_level: np.ndarray | None = None
+    input_level_log_se: np.ndarray | None = None
 
     def __post_init__(self):
+        for name in ("input_level", "input_level_log_se"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(self.freq_hz.shape, np.nan))
         for name in ("freq_hz", "damping_ratio", "freq_se_hz", "damping_se", "freq_interval_hz",
-                     "damping_interval", "directions", "support", "rejected_hz", "direction_se_rad"):
+                     "damping_interval", "directions", "support", "rejected_hz", "direction_se_rad",
+                     "input_level", "input_level_log_se"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
         object.__setattr__(self, "shapes", _ro(self.shapes, complex))
         object.__setattr__(self, "harmonics", tuple(self.harmonics))
@@ -295,6 +308,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     if fdd_directions and f_hat.size:
         shapes = _fdd_shapes(raw, fs, f_hat, z_hat, shapes)
     from_information = np.zeros(f_hat.size, dtype=bool)
+    in_level, in_level_se = np.full(f_hat.size, np.nan), np.full(f_hat.size, np.nan)
     if ml_refine and f_hat.size:
         ev = {} if ml_evidence else None
         out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
@@ -321,15 +335,16 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                             f"{ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
         keep_ = ~weak
         out = (out[0][keep_], out[1][keep_], out[2][:, keep_], out[3][keep_],
-               None if out[4] is None else tuple(a[keep_] for a in out[4]))
+               None if out[4] is None else tuple(a[keep_] for a in out[4]), tuple(a[keep_] for a in out[5]))
         f_hat, z_hat, shapes, support = f_hat[keep_], z_hat[keep_], shapes[:, keep_], support[keep_]
         f_se, z_se, u_se = f_se[keep_], z_se[keep_], u_se[keep_]
         f_ssi, z_ssi = f_hat, z_hat
-        f_hat, z_hat, ml_shapes, fitted, ses = out
+        f_hat, z_hat, ml_shapes, fitted, ses, (in_level, in_level_se) = out
         # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is
         # taken for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept
         moved = np.abs(f_hat - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
         fitted = fitted & ~moved    # a group whose fit failed keeps SSI's values and errors
+        in_level, in_level_se = np.where(fitted, in_level, np.nan), np.where(fitted, in_level_se, np.nan)
         f_hat, z_hat = np.where(fitted, f_hat, f_ssi), np.where(fitted, z_hat, z_ssi)
         if ses is not None:
             with_se = fitted & np.isfinite(ses[0]) & np.isfinite(ses[1])
@@ -360,6 +375,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     inside = inside[np.argsort(f_hat[inside], kind="stable")]   # added modes come last: in order of frequency
     f_hat, z_hat, shapes, support = f_hat[inside], z_hat[inside], shapes[:, inside], support[inside]
     f_se, z_se, u_se, from_information = f_se[inside], z_se[inside], u_se[inside], from_information[inside]
+    in_level, in_level_se = in_level[inside], in_level_se[inside]
     full_shapes = np.zeros((3, f_hat.size), dtype=complex)
     full_shapes[axes] = shapes
     directions = np.array([real_direction(full_shapes[:, k]) for k in range(f_hat.size)]).reshape(-1, 3)
@@ -377,6 +393,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         freq_interval_hz=f_iv, damping_interval=z_iv,
         directions=directions, shapes=full_shapes, support=support, harmonics=tuple(harmonics),
         direction_se_rad=u_se, rejected_hz=rejected, band_hz=band, n_segments=n_seg, level=level, warnings=tuple(warnings),
+        input_level=in_level, input_level_log_se=in_level_se,
     )
 
 
@@ -456,25 +473,26 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         bounds = segment_bounds(r.shape[1], max(int(round(n_segments * r.shape[1] / total)), 1))
         cuts += [(i, a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     jackknife_cuts = cuts if uncertainty == "jackknife" and len(cuts) >= 3 else None
-    f, z, u, fitted, rep, se = refine_modes_ml(unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines,
-                                               segments=jackknife_cuts, evidence=evidence, direction_scale=ch,
-                                               **options)
+    f, z, u, fitted, rep, se, input_level = refine_modes_ml(
+        unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines, segments=jackknife_cuts, evidence=evidence,
+        direction_scale=ch, **options)
+    levels = (np.where(fitted, input_level, np.nan), np.where(fitted, se[3], np.nan))
     out = np.zeros((shapes.shape[0], f.size), dtype=complex)
     out[:, :f_hat.size] = shapes
     for k in np.flatnonzero(fitted):
         v = u[:, k] * ch
         out[:, k] = v / np.linalg.norm(v) * (np.linalg.norm(shapes[:, k]) if k < f_hat.size else 1.0)
     if uncertainty == "information":
-        return f, z, out, fitted, (se[0], z * se[1], se[2])
+        return f, z, out, fitted, (se[0], z * se[1], se[2]), levels
     if rep is None:
-        return f, z, out, fitted, None
+        return f, z, out, fitted, None, levels
     # the jackknife spread of the direction's angle from the full-record one (rad)
     f_se = jackknife(rep[0])[1]
     z_se = jackknife(rep[1])[1]
     a = rep[2]
     cnt = np.isfinite(a).sum(axis=0)
     u_se = np.where(cnt >= 3, np.sqrt((cnt - 1) / np.maximum(cnt, 1) * np.nansum(a ** 2, axis=0)), np.nan)
-    return f, z, out, fitted, (f_se, z_se, u_se)
+    return f, z, out, fitted, (f_se, z_se, u_se), levels
 
 
 def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float = 2.0):

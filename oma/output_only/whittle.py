@@ -222,3 +222,42 @@ def _fisher(p, mod: _Model):
             cols.append(s2 * (xi[a] * yr[b] - xr[a] * yi[b] + yi[a] * xr[b] - yr[a] * xi[b]))
     r = np.concatenate(cols, axis=1)
     return r @ r.T
+
+
+def _input_level(p, mod: _Model, derivative: int, direction_scale):
+    """Each mode's input level in the physical channels, and the gradient of its logarithm in ``p``.
+
+    The model's mode ``r`` contributes ``gain(w) C_rr u_r u_r^T / |d_r|^2`` to the spectrum of the
+    group's scaled channels; in the signal's channels (times ``direction_scale``, shape (l,)) and
+    as displacement that is ``P_r v_r v_r^T / |1 - (w/w_r)^2 + 2 i zeta_r w/w_r|^2``, ``v_r`` the
+    direction made unit there, with ``P_r = |D u_r|^2 C_rr (2 zeta0_r)^2 / mean(w^(2 derivative))``.
+    ``P_r`` (m^2/Hz when the channels are metres and their derivatives; two-sided, as the DFT's
+    normalisation ``1/sqrt(fs n)``) is ``E|v_r . F|^2 / k_r^2``: with the mode's stiffness, ``P_r
+    k_r^2`` is the power spectral density of the white input force along ``v_r``.
+
+    Returns
+    -------
+    level : ndarray, shape (m,)
+    grad_log : ndarray, shape (m, n_params)
+        ``d log P_r / d p`` (through ``C_rr`` and the direction's norm ``|D u_r|``).
+    """
+    pp = _unpack(p, mod)
+    m, l = mod.m, mod.l
+    d = np.asarray(direction_scale, dtype=float)
+    du = pp.u * d[None, :]
+    n2 = np.sum(du ** 2, axis=1)
+    crr = np.diag(pp.c)[:m]
+    w2d = mod.w ** (2 * int(derivative))
+    level = n2 * crr * (2.0 * mod.ref[1]) ** 2 / np.mean(w2d)
+    grad = np.zeros((m, p.size))
+    i0 = 2 * m + m * l
+    tm = pp.tm
+    for r in range(m):
+        # C_rr = sum_j lc[r, j]^2 over row r of the Cholesky factor
+        row = np.flatnonzero(tm[0] == r)
+        grad[r, i0 + row] = 2.0 * pp.lc[r, tm[1][row]] / crr[r]
+        # |D u|^2, u = v / |v|: d log|D u|^2 / dv = (I - u u^T) 2 D^2 u / (|v| |D u|^2)
+        u = pp.u[r]
+        grad[r, 2 * m + r * l:2 * m + (r + 1) * l] = (np.eye(l) - np.outer(u, u)) @ (2.0 * d ** 2 * u) / (
+            pp.norm[r] * n2[r])
+    return level, grad
