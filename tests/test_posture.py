@@ -113,9 +113,25 @@ def test_cli_posture(cell, tmp_path, capsys):
     assert main(["posture", str(d / "path.yaml"), "--robot", str(bare), "-o", str(out2)]) == 2
     err = capsys.readouterr().err
     assert "joints.stiffness_N_m_rad: expected joint stiffness" in err and len(err.strip().splitlines()) == 1
-    assert not out2.exists() and sorted(p.name for p in out.parent.iterdir()) == ["path.csv", "posed.yaml"]
+    assert not out2.exists() and sorted(p.name for p in out.parent.iterdir()) == ["posed.csv", "posed.yaml"]
     assert main(["posture", str(d / "path.yaml"), "--rotations", "1"]) == 2
     assert "--rotations: expected an integer >= 2" in capsys.readouterr().err
+
+
+def test_cli_posture_beside_its_input_leaves_the_input_alone(cell, tmp_path, capsys):
+    """The output names its own points file: written beside the input it used to take the input's
+    points file name and overwrite it (the YAML of both then named one CSV with the new joints)."""
+    import shutil
+
+    d, _, _ = cell
+    work = tmp_path / "w"
+    shutil.copytree(d, work)
+    before = {p.name: p.read_bytes() for p in work.iterdir()}
+    assert main(["posture", str(work / "path.yaml"), "--stations", "6", "-o", str(work / "path_posed.yaml")]) == 0
+    assert all((work / name).read_bytes() == data for name, data in before.items())
+    assert read_toolpath(work / "path_posed.yaml").has_joints and (work / "path_posed.csv").exists()
+    assert main(["posture", str(work / "path.yaml"), "-o", str(work / "path.yaml")]) == 2
+    assert "-o: expected a file other than the input toolpath" in capsys.readouterr().err
 
 
 def test_unreachable_points_are_reported(cell, tmp_path, capsys):

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 from planner.cli_common import EXIT_NEGATIVE, EXIT_OK, UsageError, add_json, emit, save_figure
 
@@ -19,13 +20,17 @@ def _cmd_posture(args) -> int:
         raise UsageError("--rotations", "an integer >= 2", repr(args.rotations))
     if args.stations is not None and args.stations < 2:
         raise UsageError("--stations", "an integer >= 2", repr(args.stations))
+    if args.output and Path(args.output).resolve() == Path(args.toolpath).resolve():
+        raise UsageError("-o", "a file other than the input toolpath", args.output)
     toolpath = read_toolpath(args.toolpath)
     robot, tool_model = read_cell(toolpath, args.robot, args.tool_model, args.toolpath)
     result = choose_posture(robot, toolpath, tool_model=tool_model, n_rotations=args.rotations,
                             stations=args.stations)
     written = None
     if args.output:
-        out = result.toolpath
+        # the output names its own points file after itself: keeping the input's name beside an
+        # output in the same folder overwrote the input's points (the audit of session 14)
+        out = replace(result.toolpath, points_file=Path(args.output).stem + ".csv")
         if args.robot:
             out = replace(out, robot_file=args.robot)
         written = str(write_toolpath(out, args.output))
