@@ -18,10 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from oma.errors import InputError
+from oma.errors import InputError, ToolpathError
 from planner.cli_common import (EXIT_INPUT, EXIT_INTERNAL, EXIT_NEGATIVE, EXIT_OK, Parser, UsageError,
-                                add_json, add_model_options, coefficients, emit, load_structure, rpm_range,
-                                save_figure, structure_from_args)
+                                add_json, add_model_options, check_outputs, coefficients, declare_outputs, emit,
+                                finite, load_structure, naming_files, rpm_range, save_figure,
+                                structure_from_args)
 
 __all__ = ["main", "UsageError", "build_parser"]
 
@@ -29,12 +30,25 @@ __all__ = ["main", "UsageError", "build_parser"]
 # Each handler returns an exit code. Library imports happen inside, so `robomill --help` is fast.
 
 
+def _structure_for(args):
+    """``lobes``/``predict``: the structure, and measured FRFs only with the ZOA (the SDM integrates
+    the modes in time)."""
+    from oma.modal import ModalModel
+
+    structure = structure_from_args(args, frf=True)
+    if args.method == "sdm" and not isinstance(structure, ModalModel):
+        raise UsageError("--method", "zoa with measured FRFs (sdm needs a modal model)", "sdm")
+    return structure
+
+
 def _cmd_lobes(args) -> int:
     from stability.lobes import lobe_diagram
     from stability.setup_io import read_setup
 
+    if args.n_rpm is not None and args.n_rpm < 2:
+        raise UsageError("--n-rpm", "an integer >= 2", repr(args.n_rpm))
     setup = read_setup(args.setup)
-    structure = structure_from_args(args, frf=True)
+    structure = _structure_for(args)
     from planner.learn.cli import posterior_lobes
 
     diagram = lobe_diagram(structure, setup.tool, setup.cut, coefficients(setup, args.setup),
@@ -57,7 +71,7 @@ def _cmd_predict(args) -> int:
     from stability.setup_io import read_setup
 
     setup = read_setup(args.setup)
-    structure = structure_from_args(args, frf=True)
+    structure = _structure_for(args)
     for option, value in (("--rpm", args.rpm), ("--depth", args.depth)):
         if not value > 0:
             raise UsageError(option, "a positive number", repr(value))
@@ -87,7 +101,13 @@ def _cmd_identify_output_only(args) -> int:
         raise UsageError("--reference", "no --reference with --output-only (compare the written model instead)",
                          " ".join(args.reference))
     records = [read_record(path) for path in args.records]
-    result = identify_output_only(records, scaling=args.scale_with, coefficient_relative_sd=args.coefficient_uncertainty)
+    band = {}
+    if args.band:
+        if not 0 < args.band[0] < args.band[1]:
+            raise UsageError("--band", "0 < LO < HI (Hz)", f"{args.band[0]:g} {args.band[1]:g}")
+        band["band_hz"] = (float(args.band[0]), float(args.band[1]))
+    result = identify_output_only(records, scaling=args.scale_with, coefficient_relative_sd=args.coefficient_uncertainty,
+                                  **band)
     payload = result.to_dict()
     if all(r.has("force") for r in records) and result.model.n_modes:
         force_based = identify(records, method=args.method)
@@ -98,7 +118,10 @@ def _cmd_identify_output_only(args) -> int:
                                                                   is not None else [True] * len(comparison))
               if c.get("stiffness_ratio") is not None and not far]
         # the stiffness scales with the coefficients one for one: their ratio is the coefficients' error
-        payload["force_based"] = {"model": force_based.to_dict()["model"], "trusted": bool(force_based.trusted),
+        fb = force_based.to_dict()
+        payload["force_based"] = {"model": fb["model"], "trusted": bool(force_based.trusted),
+                                  **{key: fb.get(key) for key in ("frf_fit_error", "noise_variance_N2",
+                                                                  "min_noise_variance_N2", "excitation_sufficient")},
                                   "comparison": comparison,
                                   "coefficient_ratio": float(np.median(ok)) if ok else None}
     written = bool(args.output) and result.scaled
@@ -218,8 +241,15 @@ def _cmd_check(args) -> int:
     if args.models and args.robot:
         raise UsageError("--robot", "either --models or --robot", "both")
     if args.models:
+        if args.tool_model:
+            raise UsageError("--tool-model", "used with --robot only (with --models, each model holds every mode)",
+                             args.tool_model)
+        if not toolpath.has_joints:
+            raise ToolpathError(args.toolpath, "q1_deg..q6_deg", "joint angles at every point to check against "
+                                "models at poses (or check it with --robot)", "points without them")
         models = [read_modal_model(path) for path in args.models]
-        result = check_toolpath(toolpath, models, method=args.method, progress=not args.json)
+        with naming_files(args.toolpath, args.models):
+            result = check_toolpath(toolpath, models, method=args.method, progress=not args.json)
     else:
         from planner.robot.path import read_cell
 
@@ -254,7 +284,8 @@ def _cmd_plan(args) -> int:
     model = structure_from_args(args)
     limit, learned = (chance_constraint(args.model, setup, probability=args.probability) if args.model
                       else (None, None))  # a model with x_posterior: the chance constraint
-    result = plan(setup, model, method=args.method, stability_limit=limit)
+    with naming_files(args.setup):
+        result = plan(setup, model, method=args.method, stability_limit=limit)
     if args.output:
         fig, _ = result.plot()
         save_figure(fig, args.output)
@@ -378,15 +409,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a hammer-test FRF (.csv, .uff, .frf) or a modal model (.yaml) to compare with")
     p.add_argument("--reference-axis", nargs="+", default=None, choices=["X", "Y", "Z"],
                    help="the axis of each .frf reference file, in order")
-    p.add_argument("--band", nargs=2, type=float, default=None, metavar=("LO", "HI"),
-                   help="band of the comparison, Hz (default 5-40, the robot's structural modes)")
+    p.add_argument("--band", nargs=2, type=finite, default=None, metavar=("LO", "HI"),
+                   help="band of the comparison, Hz (default 5-40, the robot's structural modes); with "
+                        "--output-only the band analysed (default 4-100)")
     p.add_argument("--output-only", action="store_true",
                    help="identify from the vibration channels alone, scaled by the cutting-force model")
-    p.add_argument("--coefficient-uncertainty", type=float, default=0.15,
+    p.add_argument("--coefficient-uncertainty", type=finite, default=0.15,
                    help="with --output-only: relative sd of the cutting coefficients (default 0.15)")
     p.add_argument("--scale-with", choices=["force_model", "measured_force"], default="force_model",
                    help="with --output-only: the force lines that scale the modes (default: the cutting-force model)")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "file"), ("--plot", "plot", "figure"))
     p.set_defaults(handler=_cmd_identify)
 
     p = sub.add_parser("plan", help="recommended spindle speed, depth and feed")
@@ -395,9 +428,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["auto", "zoa", "sdm"], default="auto",
                    help="stability limit: auto = SDM below ae/D 0.2 (flip lobes), else ZOA")
     p.add_argument("-o", "--output", default=None, help="figure of the lobes with the optimum")
-    p.add_argument("--probability", type=float, default=0.95,
+    p.add_argument("--probability", type=finite, default=0.95,
                    help="with a learned posterior (x_posterior): plan for P(stable) >= this")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "figure"))
     p.set_defaults(handler=_cmd_plan)
 
     p = sub.add_parser("check", help="check a planned toolpath point by point")
@@ -409,6 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["zoa", "sdm"], default="zoa")
     p.add_argument("-o", "--output", default=None, help="figure of the path coloured by stability margin")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "figure"))
     p.set_defaults(handler=_cmd_check)
 
     p = sub.add_parser("diagnose", help="compare measurement with simulation, name the cause, measure the gain")
@@ -416,24 +451,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", required=True)
     p.add_argument("-o", "--output", default=None, help="figure: residuals, FRF with/without the extension, evidence")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "figure"))
     p.set_defaults(handler=_cmd_diagnose)
 
     p = sub.add_parser("simulate", help="time-domain simulation of a cut, written as a record")
     p.add_argument("setup")
     add_model_options(p, frf=False)
-    p.add_argument("--rpm", type=float, required=True)
-    p.add_argument("--depth", type=float, required=True, help="axial depth of cut, m")
-    p.add_argument("--duration", type=float, required=True, help="s")
+    p.add_argument("--rpm", type=finite, required=True)
+    p.add_argument("--depth", type=finite, required=True, help="axial depth of cut, m")
+    p.add_argument("--duration", type=finite, required=True, help="s")
     p.add_argument("-o", "--output", required=True, help="record directory to write")
-    p.add_argument("--sample-rate", type=float, default=1000.0, help="record sample rate, Hz (default 1000)")
+    p.add_argument("--sample-rate", type=finite, default=1000.0, help="record sample rate, Hz (default 1000)")
     p.add_argument("--seed", type=int, default=None, help="random seed (noise, background force)")
-    p.add_argument("--background-variance", type=float, nargs=3, metavar=("VX", "VY", "VZ"), default=None,
+    p.add_argument("--background-variance", type=finite, nargs=3, metavar=("VX", "VY", "VZ"), default=None,
                    help="broadband background force variance per machine axis, N^2 (default none)")
-    p.add_argument("--background-bandwidth", type=float, default=200.0, help="Hz (default 200)")
-    p.add_argument("--force-noise-variance", type=float, default=0.56, help="force sensor noise, N^2 (default 0.56)")
-    p.add_argument("--displacement-resolution", type=float, default=1.5e-5,
+    p.add_argument("--background-bandwidth", type=finite, default=200.0, help="Hz (default 200)")
+    p.add_argument("--force-noise-variance", type=finite, default=0.56, help="force sensor noise, N^2 (default 0.56)")
+    p.add_argument("--displacement-resolution", type=finite, default=1.5e-5,
                    help="displacement sensor resolution, m (default 1.5e-5, a laser tracker)")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "directory"))
     p.set_defaults(handler=_cmd_simulate)
 
     for name, help_text in (("lobes", "stability lobe diagram"), ("predict", "one operating point")):
@@ -442,14 +479,15 @@ def build_parser() -> argparse.ArgumentParser:
         add_model_options(p, frf=True)
         p.add_argument("--method", choices=["zoa", "sdm"], default="zoa")
         if name == "lobes":
-            p.add_argument("--rpm", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
+            p.add_argument("--rpm", type=finite, nargs=2, metavar=("MIN", "MAX"), default=None,
                            help="speed range (default: the setup's limits.spindle_rpm)")
             p.add_argument("--n-rpm", type=int, default=None, help="number of speeds (default: method's own)")
             p.add_argument("-o", "--output", default=None, help="figure file (.png, .pdf, .svg)")
+            declare_outputs(p, ("-o", "output", "figure"))
             p.set_defaults(handler=_cmd_lobes)
         else:
-            p.add_argument("--rpm", type=float, required=True)
-            p.add_argument("--depth", type=float, required=True, help="axial depth of cut, m")
+            p.add_argument("--rpm", type=finite, required=True)
+            p.add_argument("--depth", type=finite, required=True, help="axial depth of cut, m")
             p.set_defaults(handler=_cmd_predict)
         add_json(p)
 
@@ -457,6 +495,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="out", help="output directory (default out/)")
     p.add_argument("--example", default=None, help="example cell directory (default: the bundled one)")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "directory"))
     p.set_defaults(handler=_cmd_demo)
     for module in COMMAND_GROUPS:
         importlib.import_module(module).add_parsers(sub)
@@ -475,6 +514,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Warnings are for people: one line each on stderr, never on stdout.
     warnings.showwarning = lambda message, category, *a, **k: sys.stderr.write(f"robomill: warning: {message}\n")
     try:
+        check_outputs(args)
         return int(args.handler(args))
     except InputError as exc:
         sys.stderr.write(f"robomill: {exc}\n")

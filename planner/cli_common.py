@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import re
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 from oma.errors import InputError
@@ -18,7 +21,7 @@ from planner.report import jsonable
 
 __all__ = ["EXIT_OK", "EXIT_NEGATIVE", "EXIT_INPUT", "EXIT_INTERNAL", "UsageError", "Parser", "emit",
            "add_json", "save_figure", "load_structure", "rpm_range", "coefficients", "add_model_options",
-           "structure_from_args"]
+           "structure_from_args", "finite", "declare_outputs", "check_outputs", "naming_files"]
 
 EXIT_OK, EXIT_NEGATIVE, EXIT_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 
@@ -138,6 +141,81 @@ def save_figure(fig, path: str) -> None:
     with atomic_write(path) as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight", format=Path(path).suffix.lstrip(".") or "png")
     plt.close(fig)
+
+
+def finite(text: str) -> float:
+    """argparse ``type`` of a number option: a finite float (``float`` alone takes ``inf`` and ``nan``,
+    which then ran through the numerics: ``predict --rpm inf`` said "stable")."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, found {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, found {text!r}")
+    return value
+
+
+#: What an output option writes: a figure (its suffix picks the format), a file, or a directory.
+OUTPUT_KINDS = ("figure", "file", "directory")
+
+
+def declare_outputs(p: argparse.ArgumentParser, *outputs: tuple[str, str, str]) -> None:
+    """Declare a subcommand's output options as ``(option, attribute, kind)``; :func:`check_outputs`
+    checks them before the command computes anything."""
+    assert all(kind in OUTPUT_KINDS for _, _, kind in outputs)
+    p.set_defaults(outputs=tuple(outputs))
+
+
+def _figure_suffixes() -> tuple[str, ...]:
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return tuple(sorted(FigureCanvasBase.get_supported_filetypes()))
+
+
+def check_outputs(args) -> None:
+    """Every declared output path can be written as what it is, before any work is done: a figure
+    with a format matplotlib writes, a file that is not a directory, a directory that is not a file,
+    and no existing file where a folder on the way must be (the outputs' folders are created).
+    Before this, a bad path failed after the whole computation, as an internal error (exit 3)."""
+    for option, attribute, kind in getattr(args, "outputs", ()):
+        value = getattr(args, attribute, None)
+        if not value:
+            continue
+        path = Path(value)
+        what = "a directory" if kind == "directory" else "a file path"
+        if kind == "directory" and path.exists() and not path.is_dir():
+            raise UsageError(option, what, f"{value} (an existing file)")
+        if kind != "directory" and path.is_dir():
+            raise UsageError(option, what, f"{value} (an existing directory)")
+        blocked = next((a for a in path.parents if a.exists() and not a.is_dir()), None)
+        if blocked is not None:
+            raise UsageError(option, f"{what} in a folder", f"{value} ({blocked} is a file)")
+        if kind == "figure":
+            suffix = path.suffix.lower().lstrip(".")
+            formats = _figure_suffixes()
+            if suffix and suffix not in formats:
+                raise UsageError(option, "a figure file ending in ." + ", .".join(formats), value)
+
+
+@contextmanager
+def naming_files(default, models: Sequence[str] = ()) -> Iterator[None]:
+    """Errors raised on input the library was given in memory (``<input>``) name the file it came
+    from: ``models[i]...`` the i-th of ``models``, anything else ``default`` (cli.md: "one line
+    naming the file, the field and what was wrong")."""
+    try:
+        yield
+    except InputError as exc:
+        if exc.file is not None or isinstance(exc, UsageError):
+            raise
+        def named(text: str) -> str:  # "models[1]" in a message: that file's name
+            return re.sub(r"models\[(\d+)\]", lambda k: models[int(k.group(1))] if int(k.group(1)) < len(models)
+                          else k.group(0), text)
+
+        expected, found = named(exc.expected), named(exc.found)
+        m = re.match(r"models\[(\d+)\]\.?(.*)", exc.field)
+        if m and int(m.group(1)) < len(models):
+            raise type(exc)(models[int(m.group(1))], m.group(2) or "(the model)", expected, found) from None
+        raise type(exc)(default, exc.field, expected, found) from None
 
 
 def add_json(p: argparse.ArgumentParser) -> None:

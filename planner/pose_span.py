@@ -30,6 +30,8 @@ import numpy as np
 from scipy.optimize import nnls
 from scipy.spatial import Delaunay, QhullError
 
+from oma.errors import ModelError
+
 __all__ = ["PoseOutOfSpanError", "Span"]
 
 #: Weight of the sum-to-one row in the non-negative least squares of the nearest hull point, in
@@ -95,10 +97,10 @@ class Span:
             gap[np.diag_indices(n)] = np.inf
             i, j = np.unravel_index(np.argmin(gap), gap.shape)
             if gap[i, j] <= subspace_tol_deg:
-                raise ValueError(
-                    f"models[{min(i, j)}] and models[{max(i, j)}] are at the same point of the span "
-                    f"(their poses differ by {gap[i, j]:.3g} deg along it, subspace_tol_deg = "
-                    f"{subspace_tol_deg:g}): merge them or lower subspace_tol_deg")
+                raise ModelError(None, f"models[{max(i, j)}].pose.joints_deg",
+                                 f"a pose apart from models[{min(i, j)}]'s (more than {subspace_tol_deg:g} deg "
+                                 "along the span of the poses)",
+                                 f"{gap[i, j]:.3g} deg apart: merge the two models or leave one out")
         order = tri = None
         if d == 1:
             order = np.argsort(coords[:, 0], kind="stable")

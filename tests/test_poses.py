@@ -481,7 +481,7 @@ def test_errors_name_the_problem():
     short = ModalModel([10.0], [0.05], [1e6], [[1, 0, 0]], joints_deg=[1, 2, 3])
     with pytest.raises(ModelError, match=r"models\[1\]\.pose\.joints_deg: expected 6 joint angles"):
         PoseModels.fit([models[0], short])
-    with pytest.raises(ValueError, match=r"models\[0\] and models\[2\] are at the same point"):
+    with pytest.raises(ModelError, match=r"models\[2\]\.pose\.joints_deg: expected a pose apart from models\[0\]'s"):
         PoseModels.fit([models[0], models[1], models[0]])
     with pytest.raises(ValueError, match="kernel must be one of"):
         PoseModels.fit(models, kernel="gaussian")

@@ -127,7 +127,7 @@ def test_bad_input_exit_2_one_line_nothing_written(case, cell, calibrated, tmp_p
         expected = "--joints-deg: expected joint 5 (joint_5) within [-120, 120] deg, found 150 deg"
     elif case == "model_and_robot":
         argv = ["lobes", EXAMPLE / "setup.yaml", "--model", paths[0], "--robot", calibrated, "--joints-deg", *POSE,
-                "-o", out]
+                "-o", out.with_suffix(".png")]
         expected = "--robot: expected either --model or --robot, not both"
     else:
         argv = ["predict", EXAMPLE / "setup.yaml", "--model", paths[0], "--joints-deg", *POSE, "--rpm", "2000",

@@ -88,9 +88,15 @@ class OutputOnlyIdentification:
         """The ``identify --output-only --json`` object (cli.md keys plus the intervals)."""
         from ..identify import modal_mapping
 
-        out: dict[str, Any] = {"model": modal_mapping(self.model), "scaling": self.scaling,
-                               "trusted": bool(self.trusted), "method": "output-only-ssi-cov",
-                               "quantity": self.quantity}
+        # cli.md's identify keys that need a force channel are there, null: the FRF fit error, the
+        # background noise variances and the excitation check describe a force-based fit (with force
+        # channels, the CLI adds that fit under ``force_based``); no modes: no model (an empty mode
+        # list is not a robomill-modal/1 model)
+        out: dict[str, Any] = {"model": modal_mapping(self.model) if self.model.n_modes else None,
+                               "scaling": self.scaling, "trusted": bool(self.trusted),
+                               "method": "output-only-ssi-cov", "quantity": self.quantity,
+                               "frf_fit_error": None, "noise_variance_N2": None, "min_noise_variance_N2": None,
+                               "excitation_sufficient": None}
         out.update(self.modes.to_dict())
         unc = self.stiffness.to_dict() if self.stiffness is not None else [
             {"stiffness_N_m": None, "relative_sd": None, "interval_N_m": [None, None]} for _ in range(self.model.n_modes)]

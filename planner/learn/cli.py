@@ -7,7 +7,7 @@ prints.
 
 from __future__ import annotations
 
-from planner.cli_common import EXIT_OK, UsageError, add_json, emit, save_figure
+from planner.cli_common import EXIT_OK, UsageError, add_json, declare_outputs, emit, finite, save_figure
 
 __all__ = ["add_parsers", "parse_prior_sd", "chance_constraint", "posterior_lobes"]
 
@@ -49,33 +49,34 @@ def add_parsers(sub) -> None:
                    help="relative prior sds: frequency=0.10 stiffness=0.30 damping=0.50 coefficients=0.25")
     p.add_argument("--method", choices=["sdm", "auto", "zoa"], default="sdm",
                    help="stability method per cut (auto: SDM below ae/D = 0.2, ZOA above)")
-    p.add_argument("--mislabel", type=float, default=0.05, metavar="RATE",
+    p.add_argument("--mislabel", type=finite, default=0.05, metavar="RATE",
                    help="share of wrong marks (default 0.05; the prior median of a learned share)")
-    p.add_argument("--mislabel-sd", type=float, default=None, metavar="SD",
+    p.add_argument("--mislabel-sd", type=finite, default=None, metavar="SD",
                    help="prior sd of the learned share's log-odds (default 1.2: 90 %% between 0.7 and 22 %%); "
                         "given alone, > 0 learns the share (as --mislabel-model learned) and 0 fixes it")
-    p.add_argument("--noisy-mislabel", type=float, default=0.15, metavar="RATE",
+    p.add_argument("--noisy-mislabel", type=finite, default=0.15, metavar="RATE",
                    help="averaged share (--mislabel-model average): the median of the learned share's prior, the "
                         "alternative to a fixed --mislabel (default 0.15: 90 %% of it between 2.8 %% and 38 %%)")
     p.add_argument("--mislabel-model", choices=["fixed", "learned", "average"], default=None,
                    help="the share of wrong marks fixed at --mislabel, learned, or both averaged by their evidence "
                         "(default: average; learned when only --mislabel-sd > 0 is given; fixed with --mislabel 0)")
-    p.add_argument("--detection-lag", type=float, default=None, metavar="LOG",
+    p.add_argument("--detection-lag", type=finite, default=None, metavar="LOG",
                    help="outcomes detected from records: how far (log depth ratio) beyond the limit half of "
                         "the chattering cuts are detected (default 0.22, measured on robomill's detection; 0 "
                         "with --detection-scale 0.03 treats them as marks)")
-    p.add_argument("--detection-scale", type=float, default=None, metavar="LOG",
+    p.add_argument("--detection-scale", type=finite, default=None, metavar="LOG",
                    help="width (log depth ratio) of the detected outcomes' soft boundary (default 0.11)")
-    p.add_argument("--mode-correlation", type=float, default=1.0, metavar="RHO",
+    p.add_argument("--mode-correlation", type=finite, default=1.0, metavar="RHO",
                    help="several modes: correlation of the modes' prior factors within a group (1, the default: "
                         "one factor moves them all; below 1 each mode's own deviation is integrated out, "
                         "widening the boundary and each mode's sd)")
     p.add_argument("--samples", type=int, default=2000, help="posterior particles")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--rpm", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
+    p.add_argument("--rpm", nargs=2, type=finite, default=None, metavar=("MIN", "MAX"),
                    help="speed range of --plot/--suggest (default: the setup's limits, else the cuts' range)")
-    p.add_argument("--flute-length", type=float, default=None, help="flute length, m: deeper cuts are rejected")
+    p.add_argument("--flute-length", type=finite, default=None, help="flute length, m: deeper cuts are rejected")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "file"), ("--plot", "plot", "figure"))
     p.set_defaults(handler=_cmd_learn)
 
 

@@ -9,7 +9,7 @@ import warnings
 
 import numpy as np
 
-from planner.cli_common import EXIT_OK, UsageError, add_json, emit
+from planner.cli_common import EXIT_OK, UsageError, add_json, declare_outputs, emit, finite
 
 __all__ = ["add_parsers", "add_robot_options", "model_from_robot_args"]
 
@@ -17,7 +17,7 @@ __all__ = ["add_parsers", "add_robot_options", "model_from_robot_args"]
 def add_robot_options(p: argparse.ArgumentParser) -> None:
     """The ``--robot ROBOT --joints-deg Q1..Q6 [--tool-model MODEL]`` options (instead of ``--model``)."""
     p.add_argument("--robot", default=None, help="a calibrated robomill-robot/1 file (instead of --model)")
-    p.add_argument("--joints-deg", type=float, nargs=6, default=None, metavar="Q",
+    p.add_argument("--joints-deg", type=finite, nargs=6, default=None, metavar="Q",
                    help="with --robot: the pose, URDF joint values in degrees")
     p.add_argument("--tool-model", default=None, help="with --robot: spindle/tool modes in series (modal model)")
 
@@ -121,13 +121,15 @@ def add_parsers(sub) -> None:
                    help="the reach correction of the rigid-link model (auto: kept when it lowers the "
                         "leave-one-out error)")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "file"))
     p.set_defaults(handler=_cmd_calibrate)
 
     p = robot_sub.add_parser("model", help="the tool-tip modal model at any pose from a calibrated robot")
     p.add_argument("robot", help="calibrated robomill-robot/1 file")
-    p.add_argument("--joints-deg", type=float, nargs=6, required=True, metavar="Q",
+    p.add_argument("--joints-deg", type=finite, nargs=6, required=True, metavar="Q",
                    help="URDF joint values, deg")
     p.add_argument("--tool-model", default=None, help="spindle/tool modes in series (modal model)")
     p.add_argument("-o", "--output", default=None, help="modal model to write (robomill-modal/1)")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "file"))
     p.set_defaults(handler=_cmd_model)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from planner.cli_common import EXIT_NEGATIVE, EXIT_OK, UsageError, add_json, emit, save_figure
+from planner.cli_common import EXIT_NEGATIVE, EXIT_OK, UsageError, add_json, declare_outputs, emit, save_figure
 
 __all__ = ["add_parsers"]
 
@@ -66,4 +66,5 @@ def add_parsers(sub) -> None:
     p.add_argument("-o", "--output", default=None, help="toolpath to write, with joints and tool_rotation_deg")
     p.add_argument("--figure", default=None, help="figure: the path coloured by margin before and after")
     add_json(p)
+    declare_outputs(p, ("-o", "output", "file"), ("--figure", "figure", "figure"))
     p.set_defaults(handler=_cmd_posture)
