@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ._fields import Fields, describe, dump_yaml, load_yaml, plain
+from ._fields import Fields, describe, dump_yaml, load_yaml, plain, warn_user
 from .errors import ModelError
 from .io import atomic_write
 from .modal import ModalModel
@@ -96,20 +96,37 @@ def _parse(root: Fields) -> ModalModel:
                              "stiffness_N_m, direction}", describe(item))
         mode = root.child(item, where)
         fn.append(mode.positive("natural_frequency_hz"))
-        zeta.append(mode.number("damping_ratio", gt=0, lt=1))
+        zeta.append(mode.number("damping_ratio", gt=0))
+        if zeta[-1] >= 1.0:
+            # an overdamped mode is physical (a robot's joint damping can make one: robot model
+            # writes it) and G(w) of formats.md holds for it; but 5 meant as 5 % is the likelier typo
+            warn_user(f"{root.file or '<input>'}: {where}.damping_ratio: {zeta[-1]:g} >= 1, an overdamped mode "
+                      "(a ratio: 5 % is 0.05)")
         k.append(mode.positive("stiffness_N_m"))
         u.append(mode.direction("direction"))
         mode.done()
     residual = root.matrix("residual_compliance_m_N", (3, 3), required=False)
+    if residual is not None:
+        r = np.asarray(residual, dtype=float)
+        if not np.allclose(r, r.T, rtol=1e-9, atol=1e-12 * max(float(np.max(np.abs(r))), 1e-300)):
+            raise ModelError(root.file, root.where("residual_compliance_m_N"), "a symmetric matrix (reciprocity: "
+                             "G = X/F is symmetric)", f"{r.tolist()}")
     source_node = root.mapping_at("source")  # free provenance: its keys are not checked
     source = None if source_node is None else dict(source_node.mapping)
     root.done()
     kwargs: dict[str, Any] = {}
     if residual is not None:
         kwargs["residual_compliance_m_N"] = residual
-    return ModalModel(natural_frequency_hz=np.array(fn), damping_ratio=np.array(zeta),
-                      stiffness_N_m=np.array(k), directions=np.array(u), joints_deg=joints,
-                      source=source, **kwargs)
+    model = ModalModel(natural_frequency_hz=np.array(fn), damping_ratio=np.array(zeta),
+                       stiffness_N_m=np.array(k), directions=np.array(u), joints_deg=joints,
+                       source=source, **kwargs)
+    static = model.receptance(np.zeros(1))[..., 0].real
+    ev = np.linalg.eigvalsh(0.5 * (static + static.T))
+    if ev[0] < -1e-9 * ev[-1]:
+        warn_user(f"{root.file or '<input>'}: residual_compliance_m_N: the static compliance (modes plus "
+                  f"residual) is negative along a direction ({ev[0]:.3g} m/N): not a passive structure "
+                  "(formats.md: G has positive static compliance)")
+    return model
 
 
 def modal_model_to_dict(model: ModalModel) -> dict:

@@ -123,9 +123,8 @@ def test_non_unit_direction_is_normalised_with_warning(valid_modal_file):
 
 # ------------------------------------------------------------------------------- invalid
 @pytest.mark.parametrize("old, new, field, expected, found", [
-    ("damping_ratio: 0.05", "damping_ratio: 0", "modes[0].damping_ratio", "a number > 0 and < 1", "0"),
-    ("damping_ratio: 0.05", "damping_ratio: 1.0", "modes[0].damping_ratio", "a number > 0 and < 1", "1.0"),
-    ("damping_ratio: 0.04", "damping_ratio: -0.04", "modes[1].damping_ratio", "a number > 0 and < 1", "-0.04"),
+    ("damping_ratio: 0.05", "damping_ratio: 0", "modes[0].damping_ratio", "a number > 0", "0"),
+    ("damping_ratio: 0.04", "damping_ratio: -0.04", "modes[1].damping_ratio", "a number > 0", "-0.04"),
     ("natural_frequency_hz: 10.5", "natural_frequency_hz: 0", "modes[0].natural_frequency_hz", "a number > 0", "0"),
     ("stiffness_N_m: 3.0e6", "stiffness_N_m: -3.0e6", "modes[1].stiffness_N_m", "a number > 0", "-3000000.0"),
     ("stiffness_N_m: 3.0e6", "stiffness_N_m: stiff", "modes[1].stiffness_N_m", "a number > 0", "the text 'stiff'"),
@@ -134,6 +133,32 @@ def test_bad_mode_values(valid_modal_file, old, new, field, expected, found):
     edit(valid_modal_file, old, new)
     with pytest.raises(ModelError, match=rf"model\.yaml: {re.escape(field)}: expected {expected}, "
                                          rf"found {re.escape(found)}$"):
+        read_modal_model(valid_modal_file)
+
+
+def test_an_overdamped_mode_is_read_with_a_warning_and_keeps_formats_md_receptance(valid_modal_file):
+    """A robot's joint damping can make a mode overdamped (``robot model`` writes zeta 1.78 for one):
+    the file holds it, G(w) of formats.md holds for it; a warning still catches "5" meant as 5 %."""
+    edit(valid_modal_file, "damping_ratio: 0.05", "damping_ratio: 1.78")
+    with pytest.warns(FileWarning, match=r"modes\[0\]\.damping_ratio: 1\.78 >= 1, an overdamped mode"):
+        m = read_modal_model(valid_modal_file)
+    f = np.array([3.0, 10.5, 40.0])
+    r = f / m.natural_frequency_hz[0]
+    expected = np.outer(m.directions[0], m.directions[0])[:, :, None] / (
+        m.stiffness_N_m[0] * (1 - r**2 + 2j * 1.78 * r))
+    other = ModalModel(m.natural_frequency_hz[1:], m.damping_ratio[1:], m.stiffness_N_m[1:], m.directions[1:],
+                       residual_compliance_m_N=m.residual_compliance_m_N)
+    np.testing.assert_allclose(m.receptance(f), expected + other.receptance(f), rtol=1e-12)
+
+
+def test_residual_compliance_must_be_symmetric_and_a_negative_static_compliance_is_warned(valid_modal_file):
+    given = "residual_compliance_m_N: [[1.0e-9, 0, 0], [0, 1.0e-9, 0], [0, 0, 2.0e-9]]"
+    text = valid_modal_file.read_text()
+    edit(valid_modal_file, given, "residual_compliance_m_N: [[1.0e-9, 2.0e-9, 0], [0, 1.0e-9, 0], [0, 0, 2.0e-9]]")
+    with pytest.raises(ModelError, match=r"residual_compliance_m_N: expected a symmetric matrix"):
+        read_modal_model(valid_modal_file)
+    valid_modal_file.write_text(text.replace(given, "residual_compliance_m_N: [[-1.0e-5, 0, 0], [0, 0, 0], [0, 0, 0]]"))
+    with pytest.warns(FileWarning, match="static compliance .* is negative along a direction"):
         read_modal_model(valid_modal_file)
 
 

@@ -138,3 +138,38 @@ def test_bad_input_exit_2_one_line_nothing_written(case, cell, calibrated, tmp_p
     assert stdout == "" and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1 and expected in err, err
     assert not out.exists()
+
+
+def test_an_overdamped_robot_mode_is_written_read_back_and_planned_with(tmp_path, capsys):
+    """Large joint damping (N m s/rad) makes some joint-space modes overdamped: ``robot model`` writes
+    them as they are (formats.md's G(w) holds for any damping), the reader takes them back with a
+    warning (it rejected them before, so ``plan --model`` on ``robot model``'s own output was exit 2),
+    and the file's receptance is the robot model's."""
+    from planner.diagnosis.response import mode_filter
+    from planner.robot.dynamics import robot_modal_model
+
+    path = write_robot_file(tmp_path)
+    text = path.read_text().replace("damping_ratio: [0.05, 0.05, 0.05, 0.05, 0.05, 0.05]",
+                                    "damping_N_m_s_rad: [20000, 20000, 20000, 5000, 5000, 5000]")
+    path.write_text(text)
+    robot = read_robot(path)
+    q = np.radians([float(v) for v in POSE])
+    model = robot_modal_model(robot, q)
+    assert model.damping_ratio.max() > 1.0  # the case: at least one overdamped mode
+    out = tmp_path / "model.yaml"
+    assert main(["robot", "model", str(path), "--joints-deg", *POSE, "-o", str(out)]) == 0
+    with pytest.warns(UserWarning, match="an overdamped mode"):
+        back = read_modal_model(out)
+    f = np.array([2.0, 8.0, 20.0])
+    np.testing.assert_allclose(back.receptance(f), model.receptance(f), rtol=1e-9)
+    capsys.readouterr()
+    assert main(["plan", str(EXAMPLE / "setup.yaml"), "--model", str(out), "--json"]) in (0, 1)
+    assert json.loads(capsys.readouterr().out)["success"] in (True, False)
+    # diagnose's sampled mode filter takes an overdamped mode: unit static gain, and its frequency
+    # response at 5 Hz within 1 % of the continuous w^2 / (w^2 - W^2 + 2 i zeta w W)
+    fn, zeta, fs = 50.0, 1.78, 1000.0
+    b, a = (v[0] for v in mode_filter(np.array([fn]), np.array([zeta]), fs))
+    assert b.sum() / a.sum() == pytest.approx(1.0, rel=1e-9)
+    zz = np.exp(-2j * np.pi * 5.0 / fs * np.arange(3))
+    w, ww = 2 * np.pi * fn, 2 * np.pi * 5.0
+    assert abs((b @ zz) / (a @ zz) / (w**2 / (w**2 - ww**2 + 2j * zeta * w * ww)) - 1) < 0.01

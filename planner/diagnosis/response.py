@@ -28,7 +28,7 @@ def mode_filter(natural_frequency_hz, damping_ratio, sample_rate_hz: float):
     """Discrete filters ``(b, a)`` of ``w^2 / (s^2 + 2 zeta w s + w^2)`` with first-order hold.
 
     Unit static gain: a constant input ``p`` gives ``q = p``. Vectorised over the (broadcast)
-    frequencies and damping ratios (``zeta < 1``). Closed form of the triangle-hold equivalent
+    frequencies and damping ratios (``zeta >= 1``, an overdamped mode, by state-space discretisation). Closed form of the triangle-hold equivalent
     ``H(z) = (z - 1)^2 / (T z) Z{G(s) / s^2}`` (Franklin, Powell & Workman, sec. 6.3.2) with the
     partial fractions ``G / s^2 = 1/s^2 - (2 zeta / w) / s + ((2 zeta / w) s + 4 zeta^2 - 1) /
     (s^2 + 2 zeta w s + w^2)``.
@@ -41,8 +41,19 @@ def mode_filter(natural_frequency_hz, damping_ratio, sample_rate_hz: float):
     w = 2.0 * np.pi * np.asarray(natural_frequency_hz, dtype=float)
     zeta = np.asarray(damping_ratio, dtype=float)
     w, zeta = np.broadcast_arrays(w, zeta)
-    if np.any(zeta >= 1.0) or np.any(zeta < 0.0):
-        raise ValueError("mode_filter needs 0 <= damping_ratio < 1")
+    if np.any(zeta < 0.0):
+        raise ValueError("mode_filter needs damping_ratio >= 0")
+    if np.any(zeta >= 1.0):
+        # an overdamped mode (a robot model's, from large joint damping): the same first-order-hold
+        # filter by state-space discretisation, element by element (the closed form needs zeta < 1)
+        from oma.synthetic import mode_filter as unit_mass_filter
+
+        under = np.where(zeta < 1.0, zeta, 0.5)
+        b, a = mode_filter(w / (2.0 * np.pi), under, sample_rate_hz)
+        for idx in zip(*np.nonzero(zeta >= 1.0)):
+            bo, ao = unit_mass_filter(w[idx] / (2.0 * np.pi), zeta[idx], sample_rate_hz)
+            b[idx], a[idx] = w[idx] ** 2 * bo / ao[0], ao / ao[0]
+        return b, a
     t = 1.0 / float(sample_rate_hz)
     wd = w * np.sqrt(1.0 - zeta**2)
     r = np.exp(-zeta * w * t)
