@@ -329,9 +329,13 @@ def _cmd_diagnose(args) -> int:
     payload = result.to_dict()
 
     def human(p):
+        def num(x, fmt):  # a cause whose fit failed has no gain (JSON null)
+            return "n/a" if x is None else format(x, fmt)
+
         lines = [f"cause: {p['cause']}" + (f"  parameters: {p['parameters']}" if p["parameters"] else ""),
-                 f"validation error {p['error_before']:.3g} -> {p['error_after']:.3g} (gain {p['gain']:.2f})",
-                 "ranking: " + ", ".join(f"{r['cause']} {r['gain']:.2f}" for r in p["ranking"])]
+                 f"validation error {num(p['error_before'], '.3g')} -> {num(p['error_after'], '.3g')} "
+                 f"(gain {num(p['gain'], '.2f')})",
+                 "ranking: " + ", ".join(f"{r['cause']} {num(r['gain'], '.2f')}" for r in p["ranking"])]
         return "\n".join(lines)
 
     emit(args, payload, human)

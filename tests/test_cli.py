@@ -179,3 +179,13 @@ def test_diagnose_on_the_clean_example_names_no_cause(capsys):
     assert {r["cause"] for r in p["ranking"]} == {"runout", "force_sensor_dynamics", "channel_delay",
                                                   "process_damping", "unmodeled_mode", "cross_coupling",
                                                   "pose_drift", "nonlinear_cutting", "cutting_coefficients"}
+
+
+def test_diagnose_human_output_with_a_failed_fit_in_the_ranking(capsys):
+    """A cause whose fit failed has no gain (JSON null): the human summary says n/a where it was an
+    internal error (exit 3) with the figure already written (the session-14 audit: the planning
+    model, whose 720 Hz tool modes the 1 kHz record cannot see, on the long example record)."""
+    code, out, err = _run(capsys, "diagnose", str(EXAMPLE / "records" / "cut_long"), "--model",
+                          str(EXAMPLE / "models" / "planning_model.yaml"))
+    assert code == 0, err
+    assert out.startswith("cause: ") and "ranking: " in out
