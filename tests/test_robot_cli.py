@@ -47,7 +47,7 @@ def calibrated(cell):
     return out
 
 
-def test_calibrate_writes_the_robot_and_reports_the_cli_keys(cell, capsys):
+def test_calibrate_writes_the_robot_and_reports_the_cli_keys(cell, calibrated, capsys):
     d, paths = cell
     out = d / "cal2.yaml"
     code, stdout, err = _run(capsys, "robot", "calibrate", d / "bare.yaml", "--models", *paths, "-o", out, "--json")
@@ -58,7 +58,19 @@ def test_calibrate_writes_the_robot_and_reports_the_cli_keys(cell, capsys):
     assert len(payload["joint_stiffness_N_m_rad"]) == 6 and len(payload["fit_error"]) == 4
     robot = read_robot(out)
     np.testing.assert_allclose(robot.joint_stiffness_N_m_rad, payload["joint_stiffness_N_m_rad"])
-    assert robot.calibration["models"] == [str(p) for p in paths]
+    # formats.md: paths in a robot file are relative to it (they were relative to the working directory)
+    assert robot.calibration["models"] == [p.name for p in paths]
+    in_sub = read_robot(calibrated_path(d))
+    assert [(d / "out" / m).resolve() for m in in_sub.calibration["models"]] == [p.resolve() for p in paths]
+    # a model given twice is one pose, not two: exit 2 naming it (it made joints "identifiable")
+    code, _, err = _run(capsys, "robot", "calibrate", d / "bare.yaml", "--models", *paths, paths[0], "-o",
+                        d / "twice.yaml")
+    assert code == 2 and f"{paths[0]}: pose.joints_deg: expected a pose apart from {paths[0]}'s" in err
+    assert not (d / "twice.yaml").exists()
+
+
+def calibrated_path(d):
+    return d / "out" / "calibrated.yaml"
 
 
 def test_model_at_a_pose_and_its_trust(calibrated, tmp_path, capsys):

@@ -239,6 +239,10 @@ class Calibration:
                 "warnings": list(self.warnings)}
 
 
+#: Two calibration models whose joints all agree within this are at one pose (deg).
+SAME_POSE_DEG = 0.01
+
+
 def _check_models(robot: Robot, models, names):
     if len(models) < 1:
         raise InputError(None, "models", "at least one modal model", "none")
@@ -250,7 +254,17 @@ def _check_models(robot: Robot, models, names):
             raise InputError(name, "pose.joints_deg", "the pose the model was identified at (robot calibrate)",
                              "no pose")
         q.append(robot.check_joints(np.radians(m.joints_deg), file=name, field="pose.joints_deg"))
-    return np.array(q)
+    q = np.array(q)
+    # a model repeated at its pose would count as a new pose: a joint "identifiable" from one pose
+    # twice, a leave-one-out error measured on the model's own copy (the session-14 audit)
+    for i in range(1, len(q)):
+        gap = np.degrees(np.max(np.abs(q[:i] - q[i]), axis=1))
+        j = int(np.argmin(gap))
+        if gap[j] < SAME_POSE_DEG:
+            raise InputError(names[i], "pose.joints_deg", f"a pose apart from {names[j]}'s (by more than "
+                             f"{SAME_POSE_DEG:g} deg in some joint)", f"the same pose (within {gap[j]:.3g} deg): "
+                             "identify their records together, or leave one out")
+    return q
 
 
 def _data(robot, models, q):

@@ -486,8 +486,8 @@ def robot_to_dict(robot: Robot, *, urdf: str | None = None) -> dict:
 
 
 def write_robot(robot: Robot, path) -> Path:
-    """Write ``robot`` as a ``robomill-robot/1`` file, atomically; the URDF path is written
-    relative to the new file's directory when possible.
+    """Write ``robot`` as a ``robomill-robot/1`` file, atomically; the URDF path and the
+    calibration's model files are written relative to the new file's directory when possible.
 
     Returns
     -------
@@ -495,12 +495,20 @@ def write_robot(robot: Robot, path) -> Path:
         The file written.
     """
     target = Path(os.fspath(path))
-    urdf = Path(robot.urdf).resolve()
-    try:
-        urdf_text = os.path.relpath(urdf, target.resolve().parent)
-    except ValueError:  # another drive (Windows)
-        urdf_text = str(urdf)
-    text = dump_yaml(robot_to_dict(robot, urdf=urdf_text))
+
+    def relative(file) -> str:  # formats.md: paths in a robot file are relative to it
+        try:
+            return os.path.relpath(Path(file).resolve(), target.resolve().parent)
+        except ValueError:  # another drive (Windows)
+            return str(Path(file).resolve())
+
+    doc = robot_to_dict(robot, urdf=relative(robot.urdf))
+    calibration = doc.get("calibration") or {}
+    if isinstance(calibration.get("models"), list):
+        # the models named as the calibration was given them (relative to the working directory)
+        calibration["models"] = [relative(m) if isinstance(m, str) and Path(m).is_file() else m
+                                 for m in calibration["models"]]
+    text = dump_yaml(doc)
     with atomic_write(target) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return target
