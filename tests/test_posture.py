@@ -143,3 +143,21 @@ def test_unreachable_points_are_reported(cell, tmp_path, capsys):
     assert np.all(np.isnan(result.toolpath.joints_deg[-1])) and np.isnan(result.margin_after[-1])
     with pytest.raises(ValueError, match="n_rotations must be at least 2"):
         choose_posture(robot, tp, n_rotations=1)
+
+
+def test_points_the_calibration_does_not_cover_are_named(cell):
+    """A margin at a pose the calibration does not cover is an extrapolation: the posture's notes
+    count such points of the chosen posture, the same count as an independent check of the written
+    joints (the posture said nothing while moving a path out of the covered region)."""
+    from planner.robot.calibrate import calibrate
+    from robot_helpers import identified_models, region_poses
+
+    d, robot, tp = cell
+    rng = np.random.default_rng(3)
+    poses = region_poses(robot, 4, rng, scale=0.2)  # a small region: most of the path lies outside it
+    cal = calibrate(robot, identified_models(robot, poses, rng), correction=False).robot
+    result = choose_posture(cal, tp, stations=6, n_rotations=12)
+    again = check_toolpath(result.toolpath, robot=cal)
+    outside = int(np.sum(~np.asarray(again.in_span) & np.isfinite(result.margin_after)))
+    named = [n for n in result.notes if "calibration does not cover" in n]
+    assert outside > 0 and len(named) == 1 and named[0].startswith(f"{outside} point(s)")

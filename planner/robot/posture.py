@@ -398,6 +398,15 @@ def _result(machine, toolpath, before_rot, branch, before, after, pj, st, grid, 
         a = a[np.isfinite(a)]
         return float(a.min()) if a.size else math.nan
 
+    # a margin from a pose the calibration does not cover is an extrapolation: said, before and after
+    # (the choice itself does not avoid such poses; the session-14 audit found a posture that moved
+    # 240 points out of the covered region without a word)
+    covered = {k: None if r is None else ~np.asarray(r.in_span, bool) & ~bad for k, r in (("before", before),
+                                                                                         ("after", after))}
+    if covered["after"] is not None and covered["after"].any():
+        was = "" if covered["before"] is None else f" ({int(covered['before'].sum())} before)"
+        notes.append(f"{int(covered['after'].sum())} point(s) of the chosen posture at poses the calibration does "
+                     f"not cover{was}: their margins are extrapolations of the robot model, not trusted")
     notes.append("margins: depth_limit / planned depth by the check (ZOA) with the robot model per point")
     return PostureResult(toolpath=out, rotation_deg=rotation, flange_angle_deg=theta, branch=int(branch), margin_before=mb,
                          margin_after=np.where(bad, np.nan, ma), min_margin_before=low(mb),
