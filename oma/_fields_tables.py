@@ -51,7 +51,7 @@ def read_text(path, *, error: type[InputError] = InputError, missing: str = "an 
 
 def read_csv_table(path, *, error: type[InputError] = InputError, missing: str = "an existing file",
                    text_columns: Sequence[str] = (), allowed: Sequence[str] | None = None,
-                   allowed_text: str | None = None) -> dict[str, np.ndarray]:
+                   allowed_text: str | None = None, extensions: bool = False) -> dict[str, np.ndarray]:
     """Columns of a CSV file with a header row of names, comma separated.
 
     Parameters
@@ -67,6 +67,9 @@ def read_csv_table(path, *, error: type[InputError] = InputError, missing: str =
         The only column names accepted; another name is an error before any row is parsed.
     allowed_text : str, optional
         The ``expected ...`` text of that error (default: the list of allowed names).
+    extensions : bool
+        Columns whose names start with ``x_`` and are not ``allowed`` are user extensions
+        (formats.md): read as text, whatever they hold, and left out of the result.
 
     Returns
     -------
@@ -91,14 +94,17 @@ def read_csv_table(path, *, error: type[InputError] = InputError, missing: str =
             raise error(file, f"header column {i + 1}", "a column name", "an empty name")
         if header.index(h) != i:
             raise error(file, f"header column {i + 1}", "each column name once", f"{h!r} repeated")
-        if allowed is not None and h not in allowed:
+        if allowed is not None and h not in allowed and not (extensions and h.startswith("x_")):
             raise error(file, f"column {h}", allowed_text or "only the columns " + ",".join(allowed),
                         f"the unknown column {h!r}")
+    extra = [h for h in header if extensions and h.startswith("x_") and (allowed is None or h not in allowed)]
+    text_columns = tuple(text_columns) + tuple(extra)
     ncol = len(header)
     numbered = [(k, line) for k, line in enumerate(lines[1:], start=2) if line.strip()]
     text_idx = [header.index(c) for c in text_columns if c in header]
     if not numbered:
-        return {h: (np.empty(0, dtype=str) if i in text_idx else np.empty(0)) for i, h in enumerate(header)}
+        return {h: (np.empty(0, dtype=str) if i in text_idx else np.empty(0)) for i, h in enumerate(header)
+                if h not in extra}
     values = None
     if not text_idx:
         try:  # fast C parser; on any problem the slow scan below names the line
@@ -127,6 +133,8 @@ def read_csv_table(path, *, error: type[InputError] = InputError, missing: str =
         cells_by_row.append(row)
     out = {}
     for j, h in enumerate(header):
+        if h in extra:
+            continue
         col = [row[j] for row in cells_by_row]
         out[h] = np.array(col, dtype=str) if j in text_idx else np.array(col, dtype=float)
     return out

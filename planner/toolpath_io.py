@@ -109,7 +109,7 @@ def read_toolpath(path) -> Toolpath:
     csv_file = os.fspath(csv_path)
     table = read_csv_table(csv_path, error=ToolpathError, missing="the points file named in points",
                            text_columns=("milling",),
-                           allowed=POINT_COLUMNS + TOOL_AXIS_COLUMNS + (ROTATION_COLUMN,))
+                           allowed=POINT_COLUMNS + TOOL_AXIS_COLUMNS + (ROTATION_COLUMN,), extensions=True)
     has_joints = [c in table for c in JOINT_COLUMNS]
     if robot_file is None and ROTATION_COLUMN in table:
         raise ToolpathError(csv_file, f"column {ROTATION_COLUMN}", "a robot (the key robot in the YAML file) "

@@ -209,6 +209,15 @@ def test_toolpath_unknown_column(valid_toolpath_file):
         read_toolpath(valid_toolpath_file)
 
 
+def test_toolpath_extension_columns_are_ignored(valid_toolpath_file):
+    """formats.md: readers ignore keys that start with x_ (user extensions), text or numbers."""
+    plain = read_toolpath(valid_toolpath_file)
+    _edit_points(valid_toolpath_file, lambda ls: [ls[0] + ",x_operator,x_pass"] + [l + ",Jan,3" for l in ls[1:]])
+    extended = read_toolpath(valid_toolpath_file)
+    np.testing.assert_array_equal(extended.positions_m, plain.positions_m)
+    np.testing.assert_array_equal(extended.axial_depth_m, plain.axial_depth_m)
+
+
 @pytest.mark.parametrize("column, value, expected", [
     ("spindle_rpm", "0", "a number > 0"),
     ("axial_depth_m", "-0.001", "a number > 0"),
