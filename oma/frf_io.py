@@ -29,7 +29,7 @@ from typing import Literal
 
 import numpy as np
 
-from ._fields import csv_text, describe, format_float, read_csv_table, read_text
+from ._fields import csv_text, describe, format_float, read_csv_table, read_text, warn_user
 from .errors import FRFError
 from .frf_table import AXES, FRFTable
 from .io import atomic_write
@@ -138,8 +138,11 @@ def _read_frf_csv(file: str) -> FRFTable:
 
 
 def _check_frequencies(freq: np.ndarray, file: str, field: str) -> None:
-    if freq.size == 0:
-        raise FRFError(file, field, "at least one frequency", "no rows")
+    if freq.size < 2:
+        # one line is a value, not a response: the zero-order lobes from it found no chatter at any
+        # speed ("limit inf") and predict called every cut stable
+        raise FRFError(file, field, "at least two frequency lines (a response over a band)",
+                       "no rows" if freq.size == 0 else "one line")
     bad = np.flatnonzero(~np.isfinite(freq) | (freq < 0))
     if bad.size:
         raise FRFError(file, f"{field}, row {bad[0] + 1}", "finite frequencies >= 0 Hz",
@@ -375,11 +378,18 @@ def _uff_function(dset: dict, file: str, where: str, length_factor: float,
 def _table_from_uff(file: str, functions: list[UFFFunction], node: int | None) -> FRFTable:
     pairs = sorted({(f.response_node, f.reference_node) for f in functions})
     if node is None:
-        if len(pairs) != 1 or pairs[0][0] != pairs[0][1]:
+        driving = sorted({a for a, b in pairs if a == b})
+        if len(driving) != 1:
             raise FRFError(file, "nodes", "FRFs at one tool-tip node (response node = reference "
                            "node), or node= to pick the tool tip",
                            "response/reference nodes " + ", ".join(f"{a}/{b}" for a, b in pairs))
-        node = pairs[0][0]
+        node = driving[0]
+        if len(pairs) > 1:
+            # a roving-hammer set (the shared real file: response node 1, hammer at 1, 2, 3): the
+            # tool tip's FRF is the driving point's, the only one a stability model uses
+            warn_user(f"{file}: the FRFs between other nodes (" + ", ".join(
+                f"{a}/{b}" for a, b in pairs if (a, b) != (node, node)) + f") left out: node {node}, the "
+                "only one with a driving-point FRF, taken for the tool tip")
     chosen = [f for f in functions if f.response_node == node and f.reference_node == node]
     if not chosen:
         raise FRFError(file, "node", "a node with FRFs measured at it (response node = reference "

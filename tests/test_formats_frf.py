@@ -130,7 +130,13 @@ def test_csv_ragged_row(tmp_path):
 def test_csv_without_rows(tmp_path):
     path = tmp_path / "bad.csv"
     path.write_text("freq_hz,XX_re,XX_im\n")
-    with pytest.raises(FRFError, match=r"bad\.csv: column freq_hz: expected at least one frequency, found no rows"):
+    with pytest.raises(FRFError, match=r"bad\.csv: column freq_hz: expected at least two frequency lines .*, "
+                                       r"found no rows"):
+        read_frf(path)
+    # one line is a value, not a response (the lobes from it found no chatter anywhere: limit inf)
+    path.write_text("freq_hz,XX_re,XX_im\n2.0,1e-7,-1e-8\n")
+    with pytest.raises(FRFError, match=r"bad\.csv: column freq_hz: expected at least two frequency lines .*, "
+                                       r"found one line"):
         read_frf(path)
 
 
@@ -294,5 +300,8 @@ def test_real_uff58_measurement_peaks_and_conversion():
     t = read_frf(REAL_UFF, node=1)
     assert t.entry_names == ["XX"]
     np.testing.assert_array_equal(t.entry("XX"), functions[0].receptance_m_N)
-    with pytest.raises(FRFError, match=r"measurement\.uff: nodes: expected FRFs at one tool-tip node"):
-        read_frf(REAL_UFF)
+    # without node=: the driving point is the only node measured at itself, so it is the tool tip
+    # (the CLI has no node option: this file was unusable from it), the transfer FRFs left out, said
+    with pytest.warns(UserWarning, match=r"FRFs between other nodes \(1/2, 1/3\) left out: node 1"):
+        auto = read_frf(REAL_UFF)
+    np.testing.assert_array_equal(auto.entry("XX"), t.entry("XX"))
