@@ -65,7 +65,7 @@ def test_learn_writes_a_posterior_that_reads_back(files, capsys, suggest_for):
     assert p[0] > 0.95 and p[1] < 0.05
     assert len(res["suggested"]) == 2 and all(s["outcome"] == "" for s in res["suggested"])
     assert res["suggested_outcomes"] == "marked"  # the table holds marks: the next cuts are judged alike
-    score = {"mrr": "expected_improvement_mrr_m3_s", "boundary": "expected_variance_reduction"}[suggest_for]
+    score = {"mrr": "x_expected_improvement_mrr_m3_s", "boundary": "x_expected_variance_reduction"}[suggest_for]
     assert all(s[score] >= 0 for s in res["suggested"])
     # the share of wrong marks is reported with the rest (fixed and learned averaged by default, with
     # the learned one's probability), and the suspect marks listed

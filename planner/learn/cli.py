@@ -7,6 +7,8 @@ prints.
 
 from __future__ import annotations
 
+import warnings
+
 from planner.cli_common import EXIT_OK, UsageError, add_json, declare_outputs, emit, finite, save_figure
 
 __all__ = ["add_parsers", "parse_prior_sd", "chance_constraint", "posterior_lobes"]
@@ -124,14 +126,15 @@ def _likelihood(args):
 
 
 def _cmd_learn(args) -> int:
+    from oma._fields import FileWarning
     from oma.errors import InputError
     from oma.modal_io import read_modal_model
     from stability.setup_io import read_setup
 
     from .outcomes_io import read_cuts
-    from .posterior_io import write_posterior_model
+    from .posterior_io import MAX_WRITTEN_SAMPLES, write_posterior_model
     from .predictive import predict_cuts, probability_lobes
-    from .suggest import suggest_cuts
+    from .suggest import MIN_SPEED_GAP, allowed_depths, suggest_cuts
     from .update import learn
 
     # ---- every input read and checked before anything is computed or written
@@ -155,7 +158,14 @@ def _cmd_learn(args) -> int:
         raise UsageError("--suggest", "N in 1..100", str(args.suggest))
     if args.flute_length is not None and not args.flute_length > 0:
         raise UsageError("--flute-length", "a positive length in m", str(args.flute_length))
-    cuts = read_cuts(args.cuts, tool=setup.tool, flute_length_m=args.flute_length)
+    max_depth = None if setup.limits.axial_depth_m is None else float(setup.limits.axial_depth_m[1])
+    with warnings.catch_warnings(record=True) as seen:  # the table's warnings go into the report
+        warnings.simplefilter("always", FileWarning)
+        cuts = read_cuts(args.cuts, tool=setup.tool, flute_length_m=args.flute_length, max_depth_m=max_depth)
+    input_warnings = [str(w.message) for w in seen if issubclass(w.category, FileWarning)]
+    for w in seen:
+        if not issubclass(w.category, FileWarning):
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     to_predict = None
     if args.predict:
         to_predict = read_cuts(args.predict, tool=setup.tool, outcomes_required=False,
@@ -166,6 +176,7 @@ def _cmd_learn(args) -> int:
                    method=args.method, likelihood=likelihood, mode_correlation=args.mode_correlation)
     post = result.posterior
     payload = result.to_dict()
+    payload["warnings"] = input_warnings + payload["warnings"]
     payload["predictions"] = None
     payload["suggested"] = None
     if to_predict is not None:
@@ -178,19 +189,26 @@ def _cmd_learn(args) -> int:
         # the next cuts are assumed judged the way most of these were (marks, or detected from records)
         marked = cuts.outcome >= 0
         detected = 2 * int((cuts.detected & marked).sum()) > int(marked.sum())
+        # only cuts the setup's limits allow (speed, depth, power, torque, force: docs/learn.md)
+        least, most, within = allowed_depths(setup, lobes.rpm, post.reference)
         sugg, gain, incumbent = suggest_cuts(lobes, args.suggest, criterion=args.suggest_for,
-                                             likelihood=post.likelihood, detected=detected)
+                                             likelihood=post.likelihood, detected=detected,
+                                             allowed_depth_m=(least, most))
         payload["suggested_outcomes"] = "detected" if detected else "marked"
+        payload["suggested_within"] = list(within)
         fz = setup.cut.feed_per_tooth_m
         scale = setup.cut.radial_depth_m * fz * setup.tool.teeth / 60.0
-        if args.suggest_for == "mrr":
-            payload["suggested"] = [dict(sugg.row(i), feed_per_tooth_m=fz,
-                                         expected_improvement_mrr_m3_s=float(g * scale)) for i, g in enumerate(gain)]
-        else:
-            payload["suggested"] = [dict(sugg.row(i), feed_per_tooth_m=fz, expected_variance_reduction=float(g))
-                                    for i, g in enumerate(gain)]
+        payload["suggested"] = suggested_rows(sugg, gain, args.suggest_for, feed_per_tooth_m=fz, mrr_per_unit=scale)
+        if sugg.n_cuts < args.suggest:
+            payload["warnings"].append(
+                f"{sugg.n_cuts} test cut(s) suggested, not {args.suggest}: the setup's limits ({', '.join(within)}) "
+                f"allow no more speeds {MIN_SPEED_GAP:.0%} apart in the range")
         payload["best_stable_mrr_m3_s"] = incumbent * scale
+    # the posterior's samples (--predict uses them all, --plot and --suggest at most 400) and, with
+    # -o, the samples written (at most MAX_WRITTEN_SAMPLES of them, the MAP first)
     payload["posterior_samples"] = int(post.samples.shape[0])
+    if args.output:
+        payload["posterior_samples_written"] = min(int(post.samples.shape[0]), MAX_WRITTEN_SAMPLES)
     # ---- outputs last, each atomically
     if args.plot:
         fig, _ = lobes.plot(cuts=cuts)
@@ -199,6 +217,19 @@ def _cmd_learn(args) -> int:
         payload["posterior"] = str(write_posterior_model(post, args.output))
     emit(args, payload, lambda d: _human(d, result))
     return EXIT_OK
+
+
+def suggested_rows(cuts, score, criterion: str, *, feed_per_tooth_m: float, mrr_per_unit: float) -> list[dict]:
+    """The suggested cuts as rows of a cut-outcomes table (formats.md): the cut, the setup's feed,
+    an empty outcome, and the score under the ``x_`` prefix of extensions (so that a row saved as
+    CSV reads back): ``x_expected_improvement_mrr_m3_s`` (``mrr``; ``score`` in m rpm times
+    ``mrr_per_unit``) or ``x_expected_variance_reduction`` (``boundary``)."""
+    out = []
+    for i, g in enumerate(score):
+        extra = ({"x_expected_improvement_mrr_m3_s": float(g * mrr_per_unit)} if criterion == "mrr"
+                 else {"x_expected_variance_reduction": float(g)})
+        out.append(dict(cuts.row(i), feed_per_tooth_m=feed_per_tooth_m, **extra))
+    return out
 
 
 def _human(d, result) -> str:

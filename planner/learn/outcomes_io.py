@@ -9,7 +9,9 @@ and its confidence becomes the label's weight.
 
 from __future__ import annotations
 
+import codecs
 import csv
+import io
 import math
 import os
 from dataclasses import dataclass, fields
@@ -17,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from oma._fields import read_text, warn_user
 from oma.errors import InputError
 from oma.io import atomic_write
 
@@ -28,6 +31,12 @@ OUTCOMES = {"stable": STABLE, "chatter": CHATTER, "uncertain": UNCERTAIN}
 WORDS = {v: k for k, v in OUTCOMES.items()}
 REQUIRED = ("spindle_rpm", "axial_depth_m", "radial_depth_m", "milling")
 MIN_CUTS = 3
+#: Deeper than this many tool diameters an axial depth is a unit error (mm written in a column of
+#: m: 1000x too deep), not a cut: no end mill cuts ten diameters deep.
+UNIT_ERROR_DIAMETERS = 10
+#: Largest relative difference between a row's speed or depths and its record's own cut (two or
+#: three significant digits typed in the table: 0.5-2 %; the next test cut is usually further off).
+RECORD_TOLERANCE = 0.02
 
 
 class CutsError(InputError):
@@ -82,40 +91,84 @@ def _number(path, where, text, *, positive=True):
     return v
 
 
+def _text(p: Path) -> str:
+    """The file's UTF-8 text (a BOM dropped); a UTF-16 file (byte-order mark) is named as such."""
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(2)
+    except OSError:
+        head = b""  # read_text names the problem
+    if head in (codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE):
+        raise CutsError(p, "file", "UTF-8 text (save the table as CSV UTF-8)",
+                        "UTF-16 text (a UTF-16 byte-order mark)")
+    return read_text(p, error=CutsError, missing="an existing cut-outcomes CSV")
+
+
+def _rows(p: Path, text: str) -> list[tuple[int, list[str]]]:
+    """The rows that hold anything, each with its physical line (from 1; a quoted field may span
+    lines: the row's first)."""
+    reader = csv.reader(io.StringIO(text, newline=""))
+    out, last = [], 0
+    try:
+        for r in reader:
+            if any(c.strip() for c in r):
+                out.append((last + 1, r))
+            last = reader.line_num
+    except csv.Error as exc:
+        raise CutsError(p, f"line {reader.line_num}", "comma-separated fields", str(exc)) from None
+    return out
+
+
+def _check_record(p: Path, line: int, rec: Path, record, rpm: float, ap: float, ae: float, milling: str) -> None:
+    """A record whose own cut is not the row's: the row and the record were mixed up."""
+    cut = record.cut
+    for name, row_value, rec_value in (("spindle_rpm", rpm, cut.spindle_rpm),
+                                       ("axial_depth_m", ap, cut.axial_depth_m),
+                                       ("radial_depth_m", ae, cut.radial_depth_m)):
+        if rec_value and abs(row_value / float(rec_value) - 1.0) > RECORD_TOLERANCE:
+            raise CutsError(p, f"line {line}: {name}", f"the cut of its record {rec} ({name} {float(rec_value):g}, "
+                            f"within {RECORD_TOLERANCE:.0%})", f"{row_value:g}")
+    if cut.milling != milling:
+        raise CutsError(p, f"line {line}: milling", f"the cut of its record {rec} ({cut.milling})", repr(milling))
+
+
 def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: float | None = None,
-              detect=None) -> CutTable:
+              max_depth_m: float | None = None, detect=None) -> CutTable:
     """Read a cut-outcomes CSV.
 
     Parameters
     ----------
     path : str or path-like
+        UTF-8 text (a BOM is allowed), comma separated, a header row.
     tool : oma.cutting.Tool
-        The setup's tool: radial depth must be in ``(0, D]``.
+        The setup's tool: radial depth must be in ``(0, D]``, axial depth at most
+        ``UNIT_ERROR_DIAMETERS`` diameters (deeper is a depth in mm in a column of m).
     outcomes_required : bool
-        ``False`` for a table of cuts to predict (outcome column optional, ignored).
+        ``False`` for a table of cuts to predict (outcome column optional; a word there must be
+        one of the three, or empty: -1).
     flute_length_m : float, optional
         Axial depths above it are rejected (when known).
+    max_depth_m : float, optional
+        The setup's largest axial depth (``limits.axial_depth_m``): deeper cuts are kept (a test
+        cut may go deeper than production), with a :class:`oma._fields.FileWarning` naming them.
     detect : callable, optional
         ``detect(record_path, row) -> (outcome, confidence)`` for rows with an empty outcome and a
-        ``record``; default :func:`detect_outcome`.
+        ``record``; default: the record is read, its own cut checked against the row (speed and
+        depths within ``RECORD_TOLERANCE``, the same milling), and :func:`record_outcome`.
 
     Raises
     ------
     CutsError
-        Missing file or columns, a non-numeric or non-positive number, a milling other than
-        up/down, an outcome other than the three words, a depth outside the tool, fewer than
-        ``MIN_CUTS`` cuts (when outcomes are required).
+        Missing file, text that is not UTF-8, missing, unknown or repeated columns, a
+        non-numeric or non-positive number, a milling other than up/down, an outcome other than
+        the three words, a depth outside the tool, a record whose cut is not the row's, fewer than
+        ``MIN_CUTS`` cuts (when outcomes are required). Lines are the file's physical lines.
     """
     p = Path(os.fspath(path))
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise CutsError(p, "file", "a readable cut-outcomes CSV", type(exc).__name__) from None
-    rows = list(csv.reader(text.splitlines()))
-    rows = [r for r in rows if any(c.strip() for c in r)]
+    rows = _rows(p, _text(p))
     if not rows:
         raise CutsError(p, "header", "spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome", "an empty file")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in rows[0][1]]
     need = REQUIRED + (("outcome",) if outcomes_required else ())
     for name in need:
         if name not in header:
@@ -124,14 +177,18 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
     for name in header:
         if name not in known and not name.startswith("x_"):
             raise CutsError(p, "header", "known columns or x_ extensions", f"the unknown column {name!r}")
+        if not name.startswith("x_") and header.count(name) > 1:
+            raise CutsError(p, "header", "each column once", f"{name!r} {header.count(name)} times")
     col = {h: i for i, h in enumerate(header)}
     data = rows[1:]
     if outcomes_required and len(data) < MIN_CUTS:
         raise CutsError(p, "rows", f"at least {MIN_CUTS} cuts", f"{len(data)}")
     if not data:
         raise CutsError(p, "rows", "at least 1 cut", "0")
+    deepest = UNIT_ERROR_DIAMETERS * tool.diameter_m
     cols = {k: [] for k in ("rpm", "ap", "ae", "down", "out", "w", "fz", "det")}
-    for n, r in enumerate(data, start=2):
+    deep = []
+    for n, r in data:
         if len(r) != len(header):
             raise CutsError(p, f"line {n}", f"{len(header)} fields", f"{len(r)}")
         get = lambda name: r[col[name]].strip() if name in col else ""  # noqa: E731
@@ -141,9 +198,14 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
         if ae > tool.diameter_m * (1 + 1e-9):
             raise CutsError(p, f"line {n}: radial_depth_m", f"at most the tool diameter {tool.diameter_m:g} m",
                             f"{ae:g}")
+        if ap > deepest:
+            raise CutsError(p, f"line {n}: axial_depth_m", f"at most {UNIT_ERROR_DIAMETERS} tool diameters, "
+                            f"{deepest:g} m (a depth in mm in a column of m?)", f"{ap:g}")
         if flute_length_m is not None and ap > flute_length_m * (1 + 1e-9):
             raise CutsError(p, f"line {n}: axial_depth_m", f"at most the flute length {flute_length_m:g} m",
                             f"{ap:g}")
+        if max_depth_m is not None and ap > max_depth_m * (1 + 1e-9):
+            deep.append(n)
         milling = get("milling").lower()
         if milling not in ("up", "down"):
             raise CutsError(p, f"line {n}: milling", "'up' or 'down'", repr(get("milling")))
@@ -152,13 +214,23 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
         word = get("outcome").lower()
         weight, detected = 1.0, False
         if not outcomes_required:
+            if word not in OUTCOMES and word != "":
+                raise CutsError(p, f"line {n}: outcome", "stable, chatter, uncertain or empty",
+                                repr(get("outcome")))
             code = OUTCOMES.get(word, -1)
         elif word in OUTCOMES:
             code = OUTCOMES[word]
         elif word == "" and get("record"):
             rec = Path(get("record"))
             rec = rec if rec.is_absolute() else p.parent / rec
-            code, weight = (detect or detect_outcome)(rec, {"spindle_rpm": rpm})
+            if detect is None:
+                from oma.record_io import read_record
+
+                record = read_record(rec)
+                _check_record(p, n, rec, record, rpm, ap, ae, milling)
+                code, weight = record_outcome(record, rpm)
+            else:
+                code, weight = detect(rec, {"spindle_rpm": rpm})
             detected = True
         else:
             raise CutsError(p, f"line {n}: outcome", "stable, chatter or uncertain (or empty with a record)",
@@ -166,6 +238,10 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
         for k, v in zip(("rpm", "ap", "ae", "down", "out", "w", "fz", "det"),
                         (rpm, ap, ae, milling == "down", code, weight, fz, detected)):
             cols[k].append(v)
+    if deep:
+        lines = ", ".join(str(n) for n in deep[:10]) + (" ..." if len(deep) > 10 else "")
+        warn_user(f"{p}: {len(deep)} cut(s) deeper than the setup's largest axial depth {max_depth_m:g} m "
+                  f"(line {lines}): kept, as test cuts may go deeper than production; check the units")
     arr = lambda k, dt=float: np.array(cols[k], dtype=dt)  # noqa: E731
     return CutTable(arr("rpm"), arr("ap"), arr("ae"), arr("down", bool), arr("out", int), arr("w"), arr("fz"),
                     arr("det", bool))

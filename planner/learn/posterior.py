@@ -116,7 +116,7 @@ def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np
     ll = log_likelihood(x)
     beta, log_z = 0.0, 0.0
     betas, acc_hist = [0.0], []
-    scale = 2.38 / np.sqrt(d)
+    scale = 2.38 / np.sqrt(max(d, 1))
     while True:
         done = beta >= 1.0
         if not done:
@@ -136,7 +136,7 @@ def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np
             idx = _systematic(rng, logw)
             x, ll, beta = x[idx], ll[idx], new
             betas.append(beta)
-        n_moves = final_moves if beta >= 1.0 else moves
+        n_moves = 0 if d == 0 else final_moves if beta >= 1.0 else moves  # d = 0: nothing to move
         for _ in range(n_moves):
             cov = np.cov(x.T).reshape(d, d) + np.diag((1e-6 * sd) ** 2)
             chol = np.linalg.cholesky(cov)
@@ -259,9 +259,12 @@ class Posterior:
                 "sd_ratio": float(u.std() / sd0) if sd0 > 0 else 0.0}
 
     def cause(self) -> str:
-        """The parameter group whose posterior moved most against its prior sd."""
+        """The parameter group whose posterior moved most against its prior sd; ``"none"`` when
+        every group was held fixed (a prior sd of 0: nothing could move)."""
         sd0 = self.prior_log_sd
         free = sd0 > 0
+        if not free.any():
+            return "none"
         shift = np.where(free, np.abs(self.samples.mean(axis=0)) / np.where(free, sd0, 1.0), -1.0)
         return PARAMETERS[int(np.argmax(shift))]
 

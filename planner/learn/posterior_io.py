@@ -42,12 +42,15 @@ from oma.modal_io import modal_model_to_dict, read_modal_model
 from .likelihood import Likelihood
 from .posterior import PARAMETERS, Posterior
 
-__all__ = ["write_posterior_model", "read_posterior", "POSTERIOR_FORMAT"]
+__all__ = ["write_posterior_model", "read_posterior", "POSTERIOR_FORMAT", "MAX_WRITTEN_SAMPLES"]
 
 POSTERIOR_FORMAT = "robomill-posterior/1"
+#: Samples written beside the MAP model at most (a random subset, the MAP first): 500 x 5 numbers
+#: keep the file near 60 kB; ``lobes`` and ``plan`` use at most 400 of them.
+MAX_WRITTEN_SAMPLES = 500
 
 
-def posterior_to_dict(posterior: Posterior, *, max_samples: int = 500) -> dict:
+def posterior_to_dict(posterior: Posterior, *, max_samples: int = MAX_WRITTEN_SAMPLES) -> dict:
     """The ``robomill-modal/1`` mapping of the MAP model with ``x_posterior`` beside it."""
     post = posterior.thinned(max_samples)
     model, coef = posterior.map_model()
@@ -66,7 +69,7 @@ def posterior_to_dict(posterior: Posterior, *, max_samples: int = 500) -> dict:
     return doc
 
 
-def write_posterior_model(posterior: Posterior, path, *, max_samples: int = 500) -> Path:
+def write_posterior_model(posterior: Posterior, path, *, max_samples: int = MAX_WRITTEN_SAMPLES) -> Path:
     """Write the MAP model with the posterior samples (atomically)."""
     target = Path(os.fspath(path))
     text = dump_yaml(posterior_to_dict(posterior, max_samples=max_samples))

@@ -95,12 +95,13 @@ class ProbabilityLobes:
     model_error: float = 0.0
 
     def probability_stable(self, axial_depth_m) -> np.ndarray:
-        """P(stable) at every speed for each depth: shape (n_depths, n_rpm). One depth at a time:
-        samples x speeds in memory, not depths x samples x speeds (58 MB for the plot's grid)."""
+        """P(stable) at every speed for each depth: shape (n_depths, n_rpm); ``axial_depth_m``
+        is (n_depths,), or (n_depths, n_rpm) for depths that differ between speeds. One depth at a
+        time: samples x speeds in memory, not depths x samples x speeds (58 MB for the plot's grid)."""
         a = np.log(np.atleast_1d(np.asarray(axial_depth_m, dtype=float)))
         ll = np.log(self.limits)
         kernel = (lambda d: d > 0) if not self.scale > 0 else (lambda d: expit(d / self.scale))
-        return np.array([np.mean(kernel(ll - x), axis=0) for x in a]).reshape(a.size, ll.shape[1])
+        return np.array([np.mean(kernel(ll - x), axis=0) for x in a]).reshape(a.shape[0], ll.shape[1])
 
     def limit_quantile(self, p: float) -> np.ndarray:
         """The depth (m, per speed) below which the limit itself lies with probability ``p``: the
