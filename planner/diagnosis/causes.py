@@ -25,18 +25,25 @@ nonlinear_cutting         force      size effect ``K ~ (h / h_ref)^-p`` fitted w
 channel_delay             structure  displacement read at ``t - delay``; 1-D search (+-100 ms).
 unmodeled_mode            structure  one more mode ``u u^T / (k (1 - r^2 + 2 i zeta r))``: for each
                                      trial ``(f_n, zeta)`` the symmetric matrix ``u u^T / k`` is
-                                     linear (variable projection), then its dominant eigenpair.
+                                     linear (variable projection), then its dominant eigenpair;
+                                     ``f_n`` inside the records' band.
 cross_coupling            structure  one mode's direction turned (two angles), its stiffness kept;
-                                     the mode that gains most.
-pose_drift                structure  every natural frequency scaled by ``s0 (1 + r t / T)`` along
-                                     the record (mass and damping ratio kept), or by a step ``s0 (1
-                                     + r [t >= t_s])``; ``r`` is the relative change over the record.
+                                     the mode that gains most among those inside the band.
+pose_drift                structure  every natural frequency inside the band scaled by ``s0 (1 + r
+                                     t / T)`` along the record (mass and damping ratio kept), or by
+                                     a step ``s0 (1 + r [t >= t_s])``; ``r`` is the relative change
+                                     over the record.
                                      The form that fits the first half better predicts the second.
 process_damping           stability  ``C`` of Budak & Tunc's flank force in the closed-loop force
                                      spectrum (:mod:`~planner.diagnosis.closedloop`), refined on
                                      the force harmonics (simulated, the coefficients re-adjusted
                                      at each trial) where the forced vibration carries it.
 ========================  =========  ==============================================================
+
+The band is the one every record resolves (:func:`~planner.diagnosis.response.resolved_band_hz`:
+the anti-alias cut-off ``0.4 fs``). A mode of the model above it (a spindle/tool mode in a 1 kHz
+record) is held as given; :func:`fit_above_band_compliance` measures the one thing the records tell
+of it, its compliance in the band, as the alternative the structure causes must beat.
 
 Every candidate is fitted on top of the re-fitted cutting coefficients
 (:mod:`~planner.diagnosis.coefficients`), the baseline it must beat; the force candidates live in
@@ -60,9 +67,9 @@ from .coefficients import _units, coefficient_basis, coefficient_start, expand
 from .compare import Parts
 from .extension import Extension, _failed, _sumsq
 from .forcefits import _force_residuals, _initial_thetas, fit_force_sensor, fit_nonlinear, fit_runout
-from .response import Delayer, modal_response, unit_mode_response
+from .response import Delayer, modal_response, unit_mode_response, views_band_hz
 
-__all__ = ["Extension", "CANDIDATES", "fit_candidate"]
+__all__ = ["Extension", "CANDIDATES", "fit_candidate", "fit_above_band_compliance"]
 
 
 def _levenberg_marquardt(fun, x0, *, step, lower=None, upper=None, max_iter=30, tol=1e-10):
@@ -233,9 +240,11 @@ def fit_unmodeled_mode(parts: Parts) -> Extension:
         m = np.linalg.solve(gram + 1e-12 * np.trace(gram) * np.eye(6), g)
         return bb - float(g @ m), m
 
-    fs = st.views[0].sample_rate_hz
+    # the new mode's frequency inside the band every record resolves (response.resolved_band_hz):
+    # above it the anti-alias filter leaves nothing to identify it by
+    band = views_band_hz(st.views)
     # (1) a grid over the frequency (damping 3 %), then over the damping; (2) Nelder-Mead
-    grid = np.geomspace(1.0, 0.4 * fs, 64)
+    grid = np.geomspace(1.0, band, 64)
     costs = np.array([solve(f, 0.03)[0] for f in grid])
     k = int(np.argmin(costs))
     zetas = np.geomspace(0.005, 0.3, 9)
@@ -246,7 +255,7 @@ def fit_unmodeled_mode(parts: Parts) -> Extension:
 
     x0 = [math.log(grid[k]), math.log(zetas[int(np.argmin(zc))])]
     best = optimize.minimize(obj, x0, method="Nelder-Mead",
-                             bounds=[(math.log(0.5), math.log(0.45 * fs)), (math.log(1e-3), math.log(0.9))],
+                             bounds=[(math.log(0.5), math.log(band)), (math.log(1e-3), math.log(0.9))],
                              options={"xatol": 1e-3, "fatol": 1e-10 * abs(costs[k]), "maxiter": 60,
                                       "initial_simplex": [x0, [x0[0] + 0.03, x0[1]], [x0[0], x0[1] + 0.3]]})
     fn, zeta = math.exp(best.x[0]), math.exp(best.x[1])
@@ -282,9 +291,17 @@ def fit_cross_coupling(parts: Parts) -> Extension:
     if not st.views:
         return _failed("cross_coupling", "structure", "no displacement")
     mdl = st.model
+    # only a mode the records resolve can be turned: one above their band (a spindle/tool mode in
+    # a 1 kHz record) shows only as a static compliance, and turning it would trade that
+    # compliance between the axes, whatever its true direction (response.resolved_modes)
+    band = views_band_hz(st.views)
+    candidates = [r for r in range(mdl.n_modes) if mdl.natural_frequency_hz[r] <= band]
+    if not candidates:
+        return _failed("cross_coupling", "structure", f"no mode of the model inside the records' band "
+                       f"(<= {band:.4g} Hz)")
     targets = [st.fit_residual(i, p) for i, p in enumerate(st.baseline)]
     best = None
-    for r in range(mdl.n_modes):
+    for r in candidates:
         u0 = mdl.directions[r]
         k = float(mdl.stiffness_N_m[r])
         ys = [unit_mode_response(mdl.natural_frequency_hz[r], mdl.damping_ratio[r], v.force, v.sample_rate_hz)
@@ -318,7 +335,7 @@ def fit_cross_coupling(parts: Parts) -> Extension:
             return np.concatenate([st.fit_residual(i, p) for i, p in enumerate(preds(x))])
 
         x0 = np.array([u_ls @ e1, u_ls @ e2]) / max(float(u_ls @ u0), 0.2)
-        x, cost, _, ok = _levenberg_marquardt(fun, x0, step=1e-4, max_iter=12)
+        x, cost, _, ok = _levenberg_marquardt(fun, x0, step=1e-4, max_iter=30)
         if best is None or cost < best[1]:
             best = (r, cost, direction(x), preds(x), ok)
     r, _, u, pred, ok = best
@@ -332,6 +349,51 @@ def fit_cross_coupling(parts: Parts) -> Extension:
               "direction": [float(c) for c in u]}
     return Extension("cross_coupling", "structure", params, bool(ok), "Levenberg-Marquardt", pred, ext, None,
                      {"kind": "coupling"})
+
+
+def fit_above_band_compliance(parts: Parts) -> Extension | None:
+    """What the records do tell of the model's modes above their band: the compliance of each in it.
+
+    Not a cause (the records cannot tell such a mode's frequency, damping or direction,
+    :func:`~planner.diagnosis.response.resolved_modes`), but an alternative the structure causes
+    must beat: the records see a mode above their band only by its response in the band, nearly
+    its static compliance, and a structure cause that explains no more of the disagreement than a
+    change of that compliance is not told apart from it. Each such mode's response to the measured
+    force (:func:`~planner.diagnosis.response.band_limited_mode_response`) is scaled by a factor
+    ``a_r >= 0`` fitted by linear least squares on the fit halves (the free responses projected
+    out, as in every structure fit); ``a_r = 1`` is the model, ``0`` a mode the records lack.
+
+    Returns
+    -------
+    Extension or None
+        ``parameters``: ``mode_frequency_hz`` and ``compliance_factor`` (lists); ``None`` when the
+        model has no mode above the band or the records no displacement.
+    """
+    st = parts.structure
+    if not st.views:
+        return None
+    mdl = st.model
+    above = np.flatnonzero(np.asarray(mdl.natural_frequency_hz, dtype=float) > views_band_hz(st.views))
+    if above.size == 0:
+        return None
+    single = [ModalModel(mdl.natural_frequency_hz[[r]], mdl.damping_ratio[[r]], mdl.stiffness_N_m[[r]],
+                         mdl.directions[[r]]) for r in above]
+    contributions, design, targets = [], [], []
+    for i, v in enumerate(st.views):
+        q = st._basis(i, None)
+        sl = v.half("fit")
+        c_i = [modal_response(m, v.force, v.sample_rate_hz) for m in single]
+        contributions.append(c_i)
+        cols = [c[st.axes[i], sl].ravel() for c in c_i]
+        design.append(np.column_stack([c - q @ (q.T @ c) for c in cols]))
+        targets.append(st.fit_residual(i, st.baseline[i]))
+    # the change b_r = a_r - 1 of each mode's compliance, a_r >= 0
+    res = optimize.lsq_linear(np.vstack(design), np.concatenate(targets), bounds=(-1.0, np.inf))
+    change = res.x
+    pred = [p + sum(b * c for b, c in zip(change, c_i)) for p, c_i in zip(st.baseline, contributions)]
+    params = {"mode_frequency_hz": [float(mdl.natural_frequency_hz[r]) for r in above],
+              "compliance_factor": [float(1.0 + b) for b in change]}
+    return Extension("above_band_compliance", "structure", params, bool(res.success), str(res.message), pred)
 
 
 def _drift_segments(n, fs, segment_s=0.05):
@@ -405,6 +467,9 @@ def fit_pose_drift(parts: Parts) -> Extension:
             xr, cr, _, okr = _levenberg_marquardt(make_fun(float(tr)), x, step=1e-4, max_iter=4, **bounds)
             if cr < cost:
                 x, cost, ok, t_step = xr, cr, okr, float(tr)
+        # the chosen step time's size carried on to convergence (the trials stop after 4 iterations;
+        # a cause is named only when its fit succeeded)
+        x, cost, _, ok = _levenberg_marquardt(make_fun(t_step), x, step=1e-4, max_iter=20, **bounds)
     pred = []
     for v in st.views:
         n = v.n_samples

@@ -31,6 +31,14 @@ the spindle line meets the robot modes), flip chatter above 1.
 Frequencies are reported as they appear in the sampled
 signal (folded into ``[0, fs/2]``); the true chatter frequency may be ``k fs +- f``.
 
+A chatter frequency the signal cannot show. When a model predicts chatter above the band searched
+(``expected_chatter_hz``: the zero-order approximation's frequency at the cut's speed, e.g. a
+spindle/tool mode at 748 Hz in a 1 kHz record), the chatter line lies where the record's
+anti-alias filter removed it (8th order per pass at 0.4 fs: -87 dB at 748 Hz for 1 kHz) or, in a
+record without one, where it folds to ``fold(f_c)``. A "no" then says nothing about that chatter:
+its confidence is the bottom of the scale (0.1) and ``out_of_band`` is set; ``expected_alias_hz``
+says where its alias would lie (a "yes" at that line may be the folded chatter).
+
 The thresholds are physical choices made before looking at any measured data (see above); they are
 keyword arguments, and the measured cuts of ``milling-vibration-hurco`` are a check, not a tuning
 set.
@@ -38,7 +46,7 @@ set.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -85,7 +93,16 @@ class ChatterResult:
         (prominence and strength for a new line, the flip ratio for period doubling). No
         chatter: the new-line verdict's margin is that of its most clearly failed criterion, the
         flip verdict's that of the flip ratio; the smaller of the two. A 60 dB line that misses
-        the strength threshold by 10 % is a "no" with confidence 0.1, not 1.
+        the strength threshold by 10 % is a "no" with confidence 0.1, not 1. A "no" when the
+        expected chatter frequency lies above the band searched: 0.1 (module notes).
+    expected_chatter_hz : float
+        The chatter frequency a model predicts, Hz, as given (NaN if none).
+    expected_alias_hz : float
+        Where it appears in the sampled signal (folded into ``[0, fs/2]``), Hz, when it lies above
+        the band searched (NaN otherwise).
+    out_of_band : bool
+        The expected chatter frequency lies above the band searched: the chatter line is filtered
+        out or aliased.
     """
 
     chatter: bool
@@ -100,6 +117,9 @@ class ChatterResult:
     kind: str = "none"
     flip_ratio: float = float("nan")
     confidence: float = float("nan")
+    expected_chatter_hz: float = float("nan")
+    expected_alias_hz: float = float("nan")
+    out_of_band: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "freq_hz", _ro(self.freq_hz))
@@ -113,7 +133,9 @@ class ChatterResult:
         return {"chatter": bool(self.chatter), "frequency_hz": num(self.frequency_hz),
                 "prominence": num(self.prominence), "energy_ratio": num(self.energy_ratio),
                 "spindle_hz": float(self.spindle_hz), "tooth_hz": float(self.tooth_hz), "kind": self.kind,
-                "flip_ratio": num(self.flip_ratio), "confidence": num(self.confidence)}
+                "flip_ratio": num(self.flip_ratio), "confidence": num(self.confidence),
+                "expected_chatter_hz": num(self.expected_chatter_hz), "expected_alias_hz": num(self.expected_alias_hz),
+                "out_of_band": bool(self.out_of_band)}
 
 
 def _decades(value: float, threshold: float) -> float:
@@ -136,6 +158,23 @@ def _confidence(kind: str, prominence: float, energy_ratio: float, flip_ratio: f
         no_flip = -flip if np.isfinite(flip_ratio) else np.inf
         margin = min(no_hopf, no_flip)
     return float(np.clip(margin, 0.1, 1.0))
+
+
+#: Confidence of a "no" when the expected chatter frequency lies above the band searched: the
+#: bottom of the scale (the detector did not look where the chatter would be).
+OUT_OF_BAND_CONFIDENCE = 0.1
+
+
+def _with_expected(res: ChatterResult, expected_hz, band_top_hz: float, fs: float) -> ChatterResult:
+    """``res`` with the expected chatter frequency, and a "no" that could not see it marked unsure."""
+    if expected_hz is None or not np.isfinite(expected_hz):
+        return res
+    expected_hz = float(expected_hz)
+    if expected_hz <= band_top_hz:
+        return replace(res, expected_chatter_hz=expected_hz)
+    conf = res.confidence if res.chatter else min(res.confidence, OUT_OF_BAND_CONFIDENCE)
+    return replace(res, expected_chatter_hz=expected_hz, expected_alias_hz=float(fold_frequency(expected_hz, fs)),
+                   out_of_band=True, confidence=conf)
 
 
 def comb_energy(xw, fs, f0, n_harm):
@@ -196,7 +235,7 @@ def detect_chatter(signals, sample_rate_hz: float, spindle_hz: float, teeth: int
                    search: float = 0.05, segment_s: float = 2.0, min_prominence: float = 10.0,
                    min_energy_ratio: float = 0.1, min_flip_ratio: float = 0.5, mask_lines: int = 3,
                    speed_tolerance: float = 0.003, max_harmonic_hz: float | None = None, min_hz: float | None = None,
-                   max_hz: float | None = None) -> ChatterResult:
+                   max_hz: float | None = None, expected_chatter_hz: float | None = None) -> ChatterResult:
     """Is there chatter in these vibration (or force) signals?
 
     Parameters
@@ -226,6 +265,9 @@ def detect_chatter(signals, sample_rate_hz: float, spindle_hz: float, teeth: int
         the alias zones would mask most of it.
     min_hz, max_hz : float, optional
         Band searched for the line (default: 4 lines .. 0.45 fs).
+    expected_chatter_hz : float, optional
+        The chatter frequency a model predicts at this speed, Hz. Above the band searched, a "no"
+        gets confidence 0.1 and the result says where the chatter would fold (module notes).
 
     Returns
     -------
@@ -279,9 +321,10 @@ def detect_chatter(signals, sample_rate_hz: float, spindle_hz: float, teeth: int
     if not np.any(allowed):
         freq = float(fold_frequency(teeth * f0 / 2.0, fs)) if flip else float("nan")
         kind = "flip" if flip else "none"
-        return ChatterResult(flip, freq, float("nan"), float("nan"), f0, tooth, f, psd, mask, kind, flip_ratio,
-                             _confidence(kind, np.nan, np.nan, flip_ratio, min_prominence, min_energy_ratio,
-                                         min_flip_ratio))
+        return _with_expected(
+            ChatterResult(flip, freq, float("nan"), float("nan"), f0, tooth, f, psd, mask, kind, flip_ratio,
+                          _confidence(kind, np.nan, np.nan, flip_ratio, min_prominence, min_energy_ratio,
+                                      min_flip_ratio)), expected_chatter_hz, hi, fs)
     k = int(np.flatnonzero(allowed)[np.argmax(psd[allowed])])
     idx = np.arange(f.size)
     ring = allowed & (np.abs(idx - k) >= 3) & (np.abs(idx - k) <= 12)
@@ -297,6 +340,7 @@ def detect_chatter(signals, sample_rate_hz: float, spindle_hz: float, teeth: int
     kind = "hopf" if hopf else ("flip" if flip else "none")
     if kind == "flip":
         freq = float(fold_frequency(teeth * f0 / 2.0, fs))
-    return ChatterResult(hopf or flip, freq, prominence, ratio, f0, tooth, f, psd, mask, kind, flip_ratio,
-                         _confidence(kind, prominence, ratio, flip_ratio, min_prominence, min_energy_ratio,
-                                     min_flip_ratio))
+    return _with_expected(
+        ChatterResult(hopf or flip, freq, prominence, ratio, f0, tooth, f, psd, mask, kind, flip_ratio,
+                      _confidence(kind, prominence, ratio, flip_ratio, min_prominence, min_energy_ratio,
+                                  min_flip_ratio)), expected_chatter_hz, hi, fs)

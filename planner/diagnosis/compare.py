@@ -109,7 +109,8 @@ class RecordComparison:
     errors : dict
         ``force``, ``structure``, ``stability`` (module notes; NaN where a part has no data).
     chatter : ChatterResult
-        Chatter detection on the measured force of the whole window.
+        Chatter detection on the measured force of the whole window, told the predicted chatter
+        frequency (a "no" is unsure when that frequency lies above the band the record shows).
     predicted_stable : bool
     depth_limit_m : float
         Zero-order-approximation limit at the record's speed, m.
@@ -199,16 +200,17 @@ def record_comparisons(parts: Parts) -> tuple:
 
     out = []
     for i, v in enumerate(parts.views):
-        # records are filtered before sampling (formats.md; the simulator's anti-alias filter):
-        # no harmonic above the Nyquist frequency folds into them
-        chat = detect_chatter(v.force, v.sample_rate_hz, v.spindle_hz, v.tool.teeth, refine=False,
-                              max_harmonic_hz=0.5 * v.sample_rate_hz)
         try:
             op = predict_point(parts.model, v.tool, v.cut, v.coefficients, spindle_rpm=60.0 * v.spindle_hz,
                                axial_depth_m=float(v.cut.axial_depth_m), method="zoa", n_freq=4000)
             stable, limit, fc = bool(op.stable), float(op.depth_limit_m), float(op.chatter_frequency_hz)
         except (ValueError, ArithmeticError):  # pragma: no cover - a model the ZOA cannot handle
             stable, limit, fc = True, float("nan"), float("nan")
+        # records are filtered before sampling (formats.md; the simulator's anti-alias filter):
+        # no harmonic above the Nyquist frequency folds into them; a chatter frequency the model
+        # puts above the band searched cannot be seen (its "no" is marked unsure)
+        chat = detect_chatter(v.force, v.sample_rate_hz, v.spindle_hz, v.tool.teeth, refine=False,
+                              max_harmonic_hz=0.5 * v.sample_rate_hz, expected_chatter_hz=fc)
         out.append(RecordComparison(name=v.name, spindle_hz=v.spindle_hz, errors=parts.record_errors(i), chatter=chat,
                                     predicted_stable=stable, depth_limit_m=limit,
                                     axial_depth_m=float(v.cut.axial_depth_m), predicted_chatter_hz=fc))

@@ -17,18 +17,34 @@ better the extended model predicts.
    >= min_significance``; 3: a spurious extension reaches it with probability below 0.2 %, since
    its expected reduction is negative), ``gain >= min_gain`` (the share of the part's error it
    removes) and its fitted size passes its practical floor (:mod:`~planner.diagnosis.floors`:
-   twice its standard error and a physically argued amount). Among the qualified, an effect beats
-   the coefficients (it survived their re-fit; the re-fit is reported beside it), and among
+   twice its standard error and a physically argued amount), and only when its fit succeeded (an
+   optimiser that stopped short of its optimum has not measured the cause). Among the qualified,
+   an effect beats the coefficients (it survived their re-fit; the re-fit is reported beside it), and among
    effects the one that explains the most disagreement wins: ``score = sum over the parts it
    predicts of gain x disagreement`` (in standard deviations of each part's noise power, so that
    parts compare). ``none`` if no candidate qualifies. An extension may predict more than its own
    part: process damping also changes the force harmonics (through the forced vibration), which
    the simulator predicts; the coefficients also change the closed-loop spectrum.
+
+What the records cannot show. A mode of the model above the records' band (the anti-alias cut-off
+``0.4 fs``, :func:`~planner.diagnosis.response.resolved_band_hz`: a spindle/tool mode at 720 Hz in
+a 1 kHz record) is held as given: it enters the comparison by its response in the band (about its
+static compliance), is not turned (``cross_coupling``), drifted (``pose_drift``) or used to size
+a delay, and a warning says so. What the records do tell of such a mode, its compliance in the
+band, is fitted (:func:`~planner.diagnosis.causes.fit_above_band_compliance`) as the alternative
+the structure causes must beat: a structure cause whose validation gain is no larger than that
+compliance change's is not named (the records cannot tell it from a stiffer or missing spindle
+mode; on the example's long record with the planning model, whose 720/735 Hz tool modes the
+records lack, a 21 deg turn of the 10.5 Hz mode took 32 % of the structure error where the
+compliance explains 98 %). A record whose predicted chatter frequency lies above the band it
+shows cannot tell chatter there (filtered out, or folded to ``fs - f_c``): its chatter detection is
+marked unsure and a warning says so.
 """
 
 from __future__ import annotations
 
 import math
+import warnings as _warnings
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -40,16 +56,20 @@ from oma.modal import ModalModel
 from oma.record import Record
 from oma.spectra import welch_spectra
 
-from .causes import CANDIDATES, Extension, fit_candidate
+from .causes import CANDIDATES, Extension, fit_above_band_compliance, fit_candidate
 from .coefficients import CoefficientFit, fit_coefficients
 from .floors import FLOORS, practical_size
 from .compare import Comparison, Parts, record_comparisons
 from .evaluation import PartEvaluation, prepare_views, significance
 from .forcemodel import sensor_gain
 from .parts import align_angle, rotate
+from .response import views_band_hz
 
 __all__ = ["CandidateResult", "Diagnosis", "diagnose", "CAUSE_NAMES"]
 
+#: Smallest relative change of the compliance of a mode above the records' band that a warning
+#: reports as a disagreement (the unmodeled mode's floor, :mod:`~planner.diagnosis.floors`).
+ABOVE_BAND_FLOOR = 0.10
 #: Every value of ``Diagnosis.cause``.
 CAUSE_NAMES = ("none",) + tuple(CANDIDATES) + ("cutting_coefficients",)
 #: The candidates a diagnosis tries, in the order of cli.md.
@@ -157,6 +177,14 @@ class Diagnosis:
     plot_data : dict
         Arrays for :meth:`plot`: residual spectra before/after, FRF with and without the extension,
         the evidence of the named (or best-ranked) cause.
+    warnings : tuple of str
+        What the records cannot tell (modes above their band, a predicted chatter frequency they
+        cannot show) and candidates left unnamed because their fit did not succeed or a change of
+        the compliance of the modes above the band explains as much (module notes).
+    above_band : dict or None
+        The compliance of the model's modes above the records' band as the records see it:
+        ``mode_frequency_hz``, ``compliance_factor`` (1: the model's), ``gain`` and
+        ``significance`` in the structure part (None when the model has no such mode).
     """
 
     cause: str
@@ -172,6 +200,8 @@ class Diagnosis:
     min_gain: float
     plot_data: dict = field(default_factory=dict, repr=False)
     coefficient_fit: CoefficientFit | None = field(default=None, repr=False)
+    warnings: tuple = ()
+    above_band: dict | None = None
 
     def to_dict(self) -> dict:
         """The ``robomill diagnose --json`` object (cli.md), plus the comparison's part errors."""
@@ -190,6 +220,8 @@ class Diagnosis:
                            "practical_floors": {k: v[0] for k, v in FLOORS.items()}},
             "baseline_coefficients": (self.coefficient_fit.to_dict() if self.coefficient_fit is not None
                                       else None),
+            "above_band": _plain(self.above_band) if self.above_band is not None else None,
+            "warnings": list(self.warnings),
         }
 
     def plot(self, *, figsize=(12.0, 8.5)):
@@ -412,11 +444,22 @@ def diagnose(records: Sequence[Record], model: ModalModel, *, coefficients: Cutt
     results = [_score(parts, c) for c in names if c != "cutting_coefficients"]
     if fit is not None and "cutting_coefficients" in names:
         results.append(_score_coefficients(nominal, parts, fit))
+    above = _score_above_band(parts)
 
-    def qualifies(r):
+    def significant(r):
         return r.practical.get("passes", False) and any(
             math.isfinite(p["gain"]) and p["significance"] >= min_significance and p["gain"] >= min_gain
             and p["disagreement"] >= min_significance for p in r.parts.values())
+
+    def mimicked(r):
+        # a structure cause that explains no more than a change of the compliance of the modes the
+        # records cannot see is not told apart from it
+        return (above is not None and r.part == "structure" and "structure" in r.parts
+                and math.isfinite(r.parts["structure"]["gain"]) and r.parts["structure"]["gain"] <= above["gain"])
+
+    def qualifies(r):
+        # a fit that did not succeed has not measured its cause, however much it lowers the error
+        return r.success and significant(r) and not mimicked(r)
 
     def key(r):
         # a cause that survives on top of the re-fitted coefficients is the more specific finding:
@@ -437,7 +480,71 @@ def diagnose(records: Sequence[Record], model: ModalModel, *, coefficients: Cutt
     data = _plot_data(nominal if best.cause == "cutting_coefficients" else parts, best) if plot_data else {}
     if cause == "none" and data:
         data["cause"] = "none"
+    # the records disagree with the modes above their band when a change of those modes' compliance
+    # is significant, removes a share of the structure error a cause would need (min_gain), changes
+    # some compliance by 10 % or more (the unmodeled mode's floor: the limit a mode sets moves by as
+    # much), and no structure cause that qualifies explains more
+    disagrees = bool(above is not None and above["significance"] >= min_significance and above["gain"] >= min_gain
+                     and max(abs(a - 1.0) for a in above["compliance_factor"]) >= ABOVE_BAND_FLOOR
+                     and not any(qualifies(r) and r.part == "structure" and r.parts["structure"]["gain"] > above["gain"]
+                                 for r in results))
+    notes = _band_warnings(views, model, comparison, above if disagrees else None) + tuple(
+        f"{r.cause}: not named, its fit did not succeed ({r.message}), although its validation gain "
+        f"{r.gain:.2f} (z = {r.significance:.1f}) and size pass the thresholds"
+        for r in ranking if not r.success and significant(r)) + tuple(
+        f"{r.cause}: not named, a change of the compliance of the modes above the band explains as much of "
+        f"the structure disagreement (gain {above['gain']:.2f} against its {r.parts['structure']['gain']:.2f})"
+        for r in ranking if r.success and significant(r) and mimicked(r))
+    for note in notes:
+        _warnings.warn(note, UserWarning, stacklevel=2)
     return Diagnosis(cause=cause, parameters=params, error_before=float(e_b), error_after=float(e_a),
                      gain=float(gain), significance=float(z), part=best.part,
                      ranking=ranking, comparison=comparison, min_significance=float(min_significance),
-                     min_gain=float(min_gain), plot_data=data, coefficient_fit=fit)
+                     min_gain=float(min_gain), plot_data=data, coefficient_fit=fit, warnings=notes,
+                     above_band=above)
+
+
+def _score_above_band(parts: Parts) -> dict | None:
+    """The compliance of the modes above the records' band fitted, with its structure gain and ``z``
+    on the validation halves (None without such modes)."""
+    ext = fit_above_band_compliance(parts)
+    if ext is None:
+        return None
+    before, after = _evaluate(parts, "structure", ext.prediction)
+    gain = (before.error - after.error) / before.error if before.error > 0 else 0.0
+    return dict(ext.parameters, gain=float(gain), significance=float(significance(before, after)),
+                success=bool(ext.success))
+
+
+def _band_warnings(views, model: ModalModel, comparison: Comparison, above: dict | None) -> tuple:
+    """What the records cannot show: the model's modes above their band (and, given ``above``, the
+    compliance the records put on them), and predicted chatter frequencies above the band a record
+    shows (module notes)."""
+    out = []
+    band = views_band_hz(views)
+    fn = np.asarray(model.natural_frequency_hz, dtype=float)
+    high = fn[fn > band]
+    if high.size:
+        fs = min(v.sample_rate_hz for v in views)
+        out.append(f"the model's modes at {', '.join(f'{f:.4g}' for f in high)} Hz lie above the band the records "
+                   f"resolve ({band:.4g} Hz: the anti-alias cut-off of {fs:.4g} Hz sampling, Nyquist "
+                   f"{0.5 * fs:.4g} Hz); the records cannot see them: they are held as given (not turned, "
+                   f"drifted or used to size a delay) and enter the comparison by their response in the band "
+                   f"(about their static compliance)")
+    if above is not None:
+        factors = ", ".join(f"{a:.3g}" for a in above["compliance_factor"])
+        out.append(f"the records' response in the band puts the compliance of the modes above it at {factors} "
+                   f"times the model's (structure gain {above['gain']:.2f}, z = {above['significance']:.1f}): the "
+                   f"records disagree with these modes' stiffness (below 1: the model's are too soft, or the "
+                   f"records lack them; above 1: too stiff); a measurement that resolves them (a tap test, a "
+                   f"faster record) must tell")
+    for rec in comparison.records:
+        ch = rec.chatter
+        if not ch.out_of_band or rec.predicted_stable:
+            continue
+        seen = (f"chatter was detected at {ch.frequency_hz:.4g} Hz, which may be its alias" if ch.chatter
+                else f"the record's 'no chatter' cannot be trusted (confidence {ch.confidence:.2g})")
+        out.append(f"record {rec.name}: the model predicts chatter at {ch.expected_chatter_hz:.4g} Hz (depth "
+                   f"{rec.axial_depth_m:.4g} m over its limit {rec.depth_limit_m:.4g} m), above the band the record "
+                   f"shows; there it is filtered out or folds to {ch.expected_alias_hz:.4g} Hz: {seen}")
+    return tuple(out)

@@ -13,7 +13,9 @@ cause                  size measured                                            
 runout                 1x (spindle) line over the tooth line of the force           3 %
 force_sensor_dynamics  largest deviation of the sensor gain from 1 at the           5 %
                        compared harmonics
-channel_delay          phase of the delay at the model's highest mode               5 deg
+channel_delay          phase of the delay at the model's highest mode inside the    5 deg
+                       records' band (:func:`~planner.diagnosis.response.
+                       resolved_band_hz`)
 process_damping        largest relative rise of a mode's damping in the cut         20 %
 unmodeled_mode         peak compliance of the new mode over the model's largest     10 %
 cross_coupling         rotation of the mode's direction                             5 deg
@@ -32,13 +34,15 @@ import numpy as np
 
 from oma.cutting import engagement_angles
 
+from .response import views_band_hz
+
 __all__ = ["FLOORS", "practical_size"]
 
 #: cause -> (floor, what is measured, the parameter whose standard error is checked, its null value).
 FLOORS = {
     "runout": (0.03, "1x line / tooth line", "runout_amplitude_m", 0.0),
     "force_sensor_dynamics": (0.05, "max | |H| - 1 | at the compared harmonics", None, None),
-    "channel_delay": (5.0, "phase at the highest mode, deg", "delay_s", 0.0),
+    "channel_delay": (5.0, "phase at the highest mode the records resolve, deg", "delay_s", 0.0),
     "process_damping": (0.20, "largest relative rise of a mode's damping", None, None),
     "unmodeled_mode": (0.10, "peak compliance / the model's largest", None, None),
     "cross_coupling": (5.0, "rotation, deg", None, None),
@@ -77,7 +81,11 @@ def _size(cause: str, params: dict, parts, extension) -> float:
         return float(np.max(np.abs(np.abs(sensor_gain(f, params["sensor_frequency_hz"],
                                                       params["sensor_damping_ratio"])) - 1.0)))
     if cause == "channel_delay":
-        f_max = float(np.max(model.natural_frequency_hz)) if model.n_modes else 0.0
+        # the highest mode the records resolve: a delay's phase at a mode above their band (a
+        # spindle/tool mode) is not measured by them, and the fit never saw that mode's resonance
+        fn = np.asarray(model.natural_frequency_hz, dtype=float)
+        fn = fn[fn <= views_band_hz(views)]
+        f_max = float(np.max(fn)) if fn.size else 0.0
         return 360.0 * f_max * abs(params["delay_s"])
     if cause == "process_damping":
         return _process_damping_rise(params["process_damping_coefficient_N_m"], parts)

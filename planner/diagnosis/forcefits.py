@@ -38,6 +38,10 @@ def _initial_thetas(parts: Parts):
                         1.0 / np.maximum(parts.force.noise["fit"][i], 1e-30)) for i in range(len(parts.views))]
 
 
+#: Evaluations the best start of a force fit may take beyond its first 80 to converge.
+MAX_POLISH_EVALUATIONS = 400
+
+
 def _fit_force(parts: Parts, predict_from, x0, lower, upper, *, starts=None):
     """Least squares over the cause's parameters and one angle per view; returns (x, cost)."""
     n_views = len(parts.views)
@@ -56,6 +60,13 @@ def _fit_force(parts: Parts, predict_from, x0, lower, upper, *, starts=None):
                                      max_nfev=80)
         if best is None or res.cost < best.cost:
             best = res
+    if not best.success and best.status == 0:
+        # the best start stopped at its evaluation budget (a weakly determined parameter, e.g. a
+        # sensor resonance above the compared harmonics): carried on to convergence, since a cause
+        # is named only when its fit succeeded
+        more = optimize.least_squares(fun, best.x, bounds=(lo, hi), x_scale="jac", max_nfev=MAX_POLISH_EVALUATIONS)
+        if more.cost <= best.cost:
+            best = more
     return best.x[:-n_views], best
 
 

@@ -12,16 +12,98 @@ samples of each mode's displacement.
 
 Free-response columns (:func:`free_response_basis`) let a fit absorb the unknown initial state of
 the structure at the start of a record without touching the model.
+
+Modes above the record's band. Records are low-pass filtered before sampling (the simulator's
+anti-alias filter, 8th order per pass at ``0.4 fs``): the sampled force is band-limited, and a
+mode above ``0.4 fs`` (a spindle/tool mode at 720 Hz in a 1 kHz record) shows in the record only
+through its response in the band, nearly its static compliance. Its first-order-hold filter would
+instead put a resonance at its alias ``fs - f_n`` (720 Hz at 1 kHz: a threefold peak at 280 Hz,
+where the true response is 1.18 times static): such modes (:func:`resolved_modes`) respond by
+their frequency response over the band (:func:`band_limited_mode_response`), and the record
+cannot tell their frequency, damping or direction (a diagnosis holds them as given).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from scipy import fft as spfft
 from scipy import signal as sps
 
 from oma.modal import ModalModel
+from stability.simulate import ANTI_ALIAS_FRACTION
 
-__all__ = ["mode_filter", "modal_response", "free_response_basis", "apply_delay", "unit_mode_response", "Delayer"]
+__all__ = ["mode_filter", "modal_response", "free_response_basis", "apply_delay", "unit_mode_response", "Delayer",
+           "resolved_band_hz", "resolved_modes", "views_band_hz", "band_limited_mode_response"]
+
+#: Highest frequency a record resolves, as a fraction of its sample rate: the cut-off of the
+#: anti-alias filter records are taken through (the simulator's, ``ANTI_ALIAS_FRACTION``); the
+#: Nyquist frequency is 0.5.
+BAND_FRACTION = ANTI_ALIAS_FRACTION
+#: Memory of a band-limited mode response, in time constants ``1 / (zeta w)`` (e^-8 = 3e-4).
+_MEMORY_TIME_CONSTANTS = 8.0
+
+
+def resolved_band_hz(sample_rate_hz: float) -> float:
+    """Highest frequency a record sampled at ``sample_rate_hz`` resolves, Hz (``0.4 fs``).
+
+    Above it the record's anti-alias filter has removed the signal (gain 0.5 at ``0.4 fs``,
+    0.03 at the Nyquist frequency ``0.5 fs``): a mode whose resonance lies there cannot be
+    identified, turned or drifted from the record.
+    """
+    return BAND_FRACTION * float(sample_rate_hz)
+
+
+def views_band_hz(views) -> float:
+    """The band every one of ``views`` (objects with ``sample_rate_hz``) resolves, Hz: the smallest
+    :func:`resolved_band_hz` (``inf`` for none)."""
+    return min((resolved_band_hz(v.sample_rate_hz) for v in views), default=math.inf)
+
+
+def resolved_modes(model: ModalModel, sample_rate_hz: float) -> np.ndarray:
+    """Which modes of ``model`` lie inside the band a record resolves, shape (n_modes,) of bool."""
+    return np.asarray(model.natural_frequency_hz, dtype=float) <= resolved_band_hz(sample_rate_hz)
+
+
+def band_limited_mode_response(p, natural_frequency_hz: float, damping_ratio: float, sample_rate_hz: float,
+                               *, initial_value=0.0) -> np.ndarray:
+    """``w^2 / (s^2 + 2 zeta w s + w^2)`` acting on a band-limited sampled input, by its frequency response.
+
+    For a mode above the record's band (module notes): the input is taken as band-limited (filtered
+    before sampling), so the sampled output is the input's DFT times the mode's frequency response
+    up to the Nyquist frequency, with no alias of the resonance. The input is extended before its
+    start by ``initial_value`` (the mode in static equilibrium with it) and after its end by its
+    last sample, each over ``8`` time constants of the mode, so that the circular convolution of
+    the DFT does not reach the record.
+
+    Parameters
+    ----------
+    p : array_like, shape (..., n)
+        Input (unit static gain), any unit.
+    natural_frequency_hz, damping_ratio : float
+    sample_rate_hz : float
+    initial_value : float or array_like, shape (...)
+        Input before the record start.
+
+    Returns
+    -------
+    ndarray, shape (..., n)
+    """
+    p = np.asarray(p, dtype=float)
+    n = p.shape[-1]
+    fs = float(sample_rate_hz)
+    fn, zeta = float(natural_frequency_hz), float(damping_ratio)
+    tau = 1.0 / (max(zeta, 1e-3) * 2.0 * math.pi * fn)
+    pad = int(min(max(math.ceil(_MEMORY_TIME_CONSTANTS * tau * fs), 16), 4 * max(n, 1)))
+    left = np.broadcast_to(np.asarray(initial_value, dtype=float)[..., None], p.shape[:-1] + (pad,))
+    right = np.broadcast_to(p[..., -1:], p.shape[:-1] + (pad,))
+    x = np.concatenate([left, p, right], axis=-1)
+    n_fft = spfft.next_fast_len(x.shape[-1], real=True)
+    r = np.fft.rfftfreq(n_fft, 1.0 / fs) / fn
+    g = 1.0 / (1.0 - r**2 + 2j * zeta * r)
+    y = np.fft.irfft(np.fft.rfft(x, n=n_fft, axis=-1) * g, n=n_fft, axis=-1)
+    return y[..., pad:pad + n]
 
 
 def mode_filter(natural_frequency_hz, damping_ratio, sample_rate_hz: float):
@@ -113,8 +195,11 @@ def modal_response(model: ModalModel, force_N, sample_rate_hz: float, *, frequen
         Force on the tool along X, Y, Z, N.
     sample_rate_hz : float
     frequency_scale : array_like, shape (n_segments,), optional
-        Every natural frequency is multiplied by ``frequency_scale[s]`` in segment ``s`` (modal
-        mass and damping ratio kept, so the stiffness scales with its square: pose drift).
+        Every natural frequency inside the record's band is multiplied by ``frequency_scale[s]``
+        in segment ``s`` (modal mass and damping ratio kept, so the stiffness scales with its
+        square: pose drift). Modes above the band (:func:`resolved_modes`: spindle/tool modes,
+        which do not move with the arm's pose) respond by their in-band frequency response
+        (:func:`band_limited_mode_response`) and are held as given.
     segment_starts : array_like of int, shape (n_segments,), optional
         First sample of each segment (the first must be 0).
     initial : {'static', 'rest'}
@@ -144,9 +229,14 @@ def modal_response(model: ModalModel, force_N, sample_rate_hz: float, *, frequen
     m0 = int(initial_samples) if initial_samples is not None else max(1, int(round(0.2 * fs)))
     f0 = f[:, :m0].mean(axis=1) if initial == "static" else np.zeros(3)
     x = np.asarray(model.residual_compliance_m_N) @ f
-    for fn, zeta, k, u in zip(model.natural_frequency_hz, model.damping_ratio, model.stiffness_N_m,
-                              model.directions):
+    inside = resolved_modes(model, fs)
+    for fn, zeta, k, u, ok in zip(model.natural_frequency_hz, model.damping_ratio, model.stiffness_N_m,
+                                  model.directions, inside):
         p = u @ f / k
+        if not ok:
+            # above the band: its in-band frequency response, never drifted (module notes)
+            x += np.outer(u, band_limited_mode_response(p, fn, zeta, fs, initial_value=float(u @ f0 / k)))
+            continue
         if scale.size == 1:
             p = p / scale[0] ** 2
         else:
@@ -160,14 +250,18 @@ def modal_response(model: ModalModel, force_N, sample_rate_hz: float, *, frequen
 
 
 def free_response_basis(model: ModalModel, n_samples: int, sample_rate_hz: float) -> np.ndarray:
-    """Free responses of every mode from two initial states, shape (3, n_samples, 2 n_modes), m per unit.
+    """Free responses of the modes inside the record's band from two initial states, m per unit.
 
-    Columns ``2r`` and ``2r + 1`` are ``u_r e^{-zeta w t} cos(w_d t)`` and ``u_r e^{-zeta w t}
-    sin(w_d t)``: any initial state of mode ``r`` decays as a combination of the two.
+    Shape (3, n_samples, 2 n_resolved). Columns ``2r`` and ``2r + 1`` are ``u_r e^{-zeta w t}
+    cos(w_d t)`` and ``u_r e^{-zeta w t} sin(w_d t)``: any initial state of mode ``r`` decays as a
+    combination of the two. A mode above the band (:func:`resolved_modes`) is left out: the
+    record's anti-alias filter removes its free response, and sampled it would oscillate at its
+    alias.
     """
     t = np.arange(int(n_samples)) / float(sample_rate_hz)
     cols = []
-    for fn, zeta, u in zip(model.natural_frequency_hz, model.damping_ratio, model.directions):
+    keep = resolved_modes(model, sample_rate_hz)
+    for fn, zeta, u in zip(model.natural_frequency_hz[keep], model.damping_ratio[keep], model.directions[keep]):
         w = 2.0 * np.pi * fn
         wd = w * np.sqrt(max(1.0 - zeta**2, 1e-12))
         env = np.exp(-zeta * w * t)
@@ -203,12 +297,16 @@ def unit_mode_response(natural_frequency_hz: float, damping_ratio: float, force_
 
     ``y_j = H_r * F_j`` with ``H_r = w^2 / (s^2 + 2 zeta w s + w^2)``, started in static
     equilibrium with the mean of the first ``initial_samples`` samples (default 0.2 s), as
-    :func:`modal_response` does. A mode of stiffness ``k`` and direction ``u`` then moves the tool
-    tip by ``u (u . y) / k``.
+    :func:`modal_response` does (a mode above the record's band by its in-band frequency
+    response, as there). A mode of stiffness ``k`` and direction ``u`` then moves the tool tip by
+    ``u (u . y) / k``.
     """
     f = np.array(force_N, dtype=float, ndmin=2)
     fs = float(sample_rate_hz)
     m0 = int(initial_samples) if initial_samples is not None else max(1, int(round(0.2 * fs)))
+    if natural_frequency_hz > resolved_band_hz(fs):
+        return band_limited_mode_response(f, natural_frequency_hz, damping_ratio, fs,
+                                          initial_value=f[:, :m0].mean(axis=1))
     b, a = mode_filter(natural_frequency_hz, damping_ratio, fs)
     zi = _steady_state_zi(b, a, f[:, :m0].mean(axis=1))  # (2, n_channels)
     out, _ = sps.lfilter(b, a, f, axis=-1, zi=zi.T)
