@@ -19,7 +19,8 @@ least 1e-3 of the largest tool-tip compliance):
    choice, singularity measure, modes, ZOA kernel), the basis of the chunk sizing.
 4. *accuracy of the defaults*: 200 positions x 12 rotations serially, the defaults against 10 000
    chatter frequencies and against every mode kept: rows whose best speed, depth limit and MRR
-   differ.
+   differ; and the limit at the chosen speed against ``stability.zoa.envelope`` (predict's ZOA).
+   ``--tool`` (cases 3 and 4) adds spindle/tool modes at 720/735 Hz (2 % damping) in series.
 
 The machine is shared by several agents: the load average is printed before and after each case;
 times are medians of ``--repeat`` runs.
@@ -135,13 +136,13 @@ def case_scaling(repeat, n_points):
     return rows
 
 
-def case_cost(n_points=200):
+def case_cost(n_points=200, tool=False):
     from planner.atlas import evaluate as ev
     from planner.atlas._kernel import atlas_kernel
     from planner.robot import robot_modes
     from planner.robot.ik import inverse_kinematics, singularity_measure
 
-    problem, region = _problem(shape=(10, 5, 4))
+    problem, region = _problem(shape=(10, 5, 4), **({"tool_model": tool_model()} if tool else {}))
     pos = region.to_machine(region.positions_m())[:n_points]
     ev.evaluate_chunk(problem, pos[:2])  # warm
     n_rot = problem.rotations_rad.size
@@ -169,7 +170,7 @@ def case_cost(n_points=200):
                    *res)
     parts["ZOA envelope + best cut + exact limit"] = time.process_time() - t
     rows = p.shape[0]
-    print(f"cost per (position, rotation), CPU, {rows} rows ({g} reachable):")
+    print(f"cost per (position, rotation), CPU, {rows} rows ({g} reachable){', tool modes' if tool else ''}:")
     print("| part | us per row |")
     print("| --- | ---: |")
     for name, sec in parts.items():
@@ -177,19 +178,43 @@ def case_cost(n_points=200):
     print(f"| total | {sum(parts.values()) / rows * 1e6:.1f} |")
 
 
-def case_accuracy(n_points=200):
+def tool_model():
+    """Spindle/tool modes in series with the arm (``--tool``): 720 Hz along X and 735 Hz along Y,
+    2 % damping (the 2026-11-26 audit's case, where the default grid missed the tool lobes)."""
+    from oma.modal import ModalModel
+
+    return ModalModel([720.0, 735.0], [0.02, 0.02], [4.0e6, 4.4e6], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def case_accuracy(n_points=200, tool=False):
     """The defaults (500 chatter frequencies, modes with >= 1e-3 of the largest tool-tip
-    compliance) against 10 000 frequencies and every mode down to 1e-9 of it."""
+    compliance) against 10 000 frequencies and every mode down to 1e-9 of it; and the limit at the
+    chosen speed against ``stability.zoa.envelope`` (predict_point's ZOA, 10 000 frequencies) for
+    the same modes, on every 10th row."""
     from planner.atlas.evaluate import evaluate_chunk
+    from planner.robot import robot_modal_model
+    from stability import zoa
+
+    extra = {"tool_model": tool_model()} if tool else {}
 
     def run(**options):
-        problem, region = _problem(shape=(10, 5, 4), **options)
-        return evaluate_chunk(problem, region.to_machine(region.positions_m())[:n_points])
+        problem, region = _problem(shape=(10, 5, 4), **extra, **options)
+        return problem, evaluate_chunk(problem, region.to_machine(region.positions_m())[:n_points])
 
-    a = run()
+    problem, a = run()
+    rows = np.flatnonzero(np.isfinite(a["depth_limit_m"]))[::10]
+    rel = []
+    for i in rows:
+        q = np.radians([a[f"q{j}_deg"][i] for j in range(1, 7)])
+        model = robot_modal_model(problem.robot, q, min_tip_fraction=problem.min_tip_fraction, **extra)
+        env = zoa.envelope(model, problem.tool, problem.cut_machine, problem.coefficients, [a["spindle_rpm"][i]],
+                           n_freq=10_000)
+        rel.append(abs(a["depth_limit_m"][i] / env.depth_limit_m[0] - 1))
+    print(f"accuracy{' (with the tool modes)' if tool else ''}: limit at the chosen speed against "
+          f"stability.zoa.envelope (10 000 frequencies, same modes), {rows.size} rows: max {max(rel):.1e}")
     for label, options in (("10 000 chatter frequencies", {"n_freq": 10_000}),
                            ("all modes (min_tip_fraction 1e-9)", {"min_tip_fraction": 1e-9})):
-        b = run(**options)
+        _, b = run(**options)
         ok = np.isfinite(a["mrr_m3_s"]) & np.isfinite(b["mrr_m3_s"])
         same_rpm = np.mean(a["spindle_rpm"][ok] == b["spindle_rpm"][ok])
         fin = ok & np.isfinite(a["depth_limit_m"]) & np.isfinite(b["depth_limit_m"])
@@ -206,6 +231,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--only", choices=["target", "scaling", "cost", "accuracy"], default=None)
+    ap.add_argument("--tool", action="store_true", help="cost, accuracy: with spindle/tool modes in series (720/735 Hz)")
     args = ap.parse_args(argv)
     repeat = 1 if args.quick else args.repeat
     cases = [args.only] if args.only else ["cost", "accuracy", "scaling", "target"]
@@ -215,9 +241,9 @@ def main(argv=None):
         elif case == "scaling":
             case_scaling(repeat, 400 if args.quick else 2000)
         elif case == "cost":
-            case_cost()
+            case_cost(tool=args.tool)
         else:
-            case_accuracy(60 if args.quick else 200)
+            case_accuracy(60 if args.quick else 200, tool=args.tool)
 
 
 if __name__ == "__main__":

@@ -17,15 +17,19 @@ order: position-major, rotation-minor):
    compliance is below ``min_tip_fraction`` of the largest are left out (they cannot set a limit
    within the depth range). Reported: the lowest tool-tip mode and the most compliant one.
 3. **Stability over the speed range** (zero-order approximation, Altintas & Budak, CIRP Annals
-   44(1), 1995): the lobe envelope on ``rpm_grid`` (:mod:`planner.atlas._kernel`), its smallest
-   value over the range (``min_depth_limit_m``: the depth stable at every speed of the range).
+   44(1), 1995, the method of ``robomill predict``): the lobe envelope on ``rpm_grid``
+   (:mod:`planner.atlas._kernel`: the log chatter-frequency grid plus lines around every mode,
+   lobe onsets included), and its smallest value over the range (``min_depth_limit_m``: the depth
+   stable at every speed of the grid; never above the exact limit at the chosen speed).
 4. **The best stable removal rate** under the setup's limits: ``MRR = ap ae fz N n / 60`` with
    ``fz`` fixed at the feed bound (MRR grows with ``fz`` under every constraint used here: the
    stability limit does not depend on it, and the mean torque, power and peak force grow slower
    than ``fz`` at the depth they allow; see :func:`planner.atlas.problem.build_problem`), and
    ``ap = min(depth bound, force bound, torque bound, power bound(n), margin x limit(n))`` at each
    speed of the grid; the speed with the largest rate (ties: the largest stability reserve). The
-   limit at that speed is then solved exactly, and ``ap`` recomputed with it.
+   limit at that speed, and at up to three others whose rate is within 5 % of it where stability
+   may bind, is then solved exactly (as :func:`stability.lobes.predict_point`), the best of them by
+   the exact limit kept, and ``ap`` recomputed with it.
 
 The surface location error is not part of the atlas (it needs the forced response per pose and
 speed; ``robomill check --robot`` gives it along a toolpath). Everything is vectorised over the
