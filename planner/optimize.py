@@ -4,7 +4,7 @@ The problem (robomill issue 5)::
 
     maximise    MRR = ap ae fz N n / 60                     over n (rpm), ap (m), fz (m)
     subject to  ap <= margin * a_lim(n)                      stability (ZOA or SDM limit)
-                |SLE(n, ap, fz)| <= tol                      surface location error
+                |SLE(n, ap, fz; z)| <= tol, 0 <= z <= ap     surface location error on the wall
                 peak force (ap, fz) <= F_max
                 mean torque = ap tau(fz) <= T_max,  power = 2 pi n / 60 * ap * tau(fz) <= P_max
                 the bounds of the setup on n, ap and fz
@@ -28,13 +28,28 @@ How each function enters the NLP (smooth inside one pocket):
   Fourier coefficients ``F_h`` over the engagement window (affine in fz: cutting part times fz plus edge part); a helix delays
   the slice at height ``z`` by ``kappa z``, so the cut's harmonic is
   ``F_h (1 - exp(-i h N kappa ap)) / (i h N kappa)``; the receptance of each mode is rational in
-  ``n``. Hence ``SLE = fz S_c(n, ap) + S_e(n, ap)`` with no interpolation in ``n`` or ``ap``
-  (the harmonics of :func:`stability.forced.default_harmonics` at the pocket's lowest speed).
-  It is not monotone in depth: with a helix the dynamic part cancels near multiples of the axial
-  pitch, so ``|SLE| <= tol`` can hold in thin bands of depth only; the start grid looks for them.
-* **Peak force** does not depend on speed: for every feed on a grid the largest depth with the
-  peak within the limit is found (bracketing on a depth grid, then regula falsi), and the
-  constraint ``ap <= A(fz)`` uses a cubic B-spline of these depths (``ca.interpolant``).
+  ``n``. The limit holds on the whole finished wall (formats.md), not only at the tip: the slice
+  at height ``z`` reaches the finishing angle ``kappa z / Omega`` after the tip, so harmonic ``h``
+  of the displacement turns by ``exp(i h N kappa z)`` there (the profile of
+  :func:`stability.forced.forced_response`). Hence ``SLE(z) = fz S_c(n, ap, z) + S_e(n, ap, z)``
+  with no interpolation in ``n``, ``ap`` or ``z`` (the harmonics of
+  :func:`stability.forced.default_harmonics` at the pocket's lowest speed). ``max_z |SLE|`` is a
+  semi-infinite constraint; the NLP bounds ``|SLE|`` at a few heights ``z = s ap`` (the fractions
+  ``s`` are parameters: those where the start point's profile peaks) and an exchange adds the
+  height of the largest ``|SLE|`` on a dense grid at the answer until none exceeds the limit.
+  The surface error is not monotone in depth: with a helix the force harmonics cancel near
+  multiples of the axial pitch, so the limit can hold in thin bands of depth only; the start grid
+  looks for them.
+* **Peak force** does not depend on speed, and at one depth it is convex in feed (the largest over
+  the angle of ``|F_e + fz F_c|``): the largest feed ``B(ap)`` with the peak within the limit is
+  exact per depth, the smallest over the angles of the root of a quadratic in ``fz``. It is
+  continuous in depth with kinks where the helix lag ``kappa ap`` brings an entry or exit angle
+  onto another (``kappa ap = m pitch`` or ``m pitch +- (exit - entry)``): once every angle of the
+  engagement lies on the flute, the peak stops growing with depth. (The largest depth per feed
+  would jump there, from a finite depth to none, which no smooth function of the feed follows.)
+  The constraint ``ap fz <= q(ap) = ap B(ap)`` uses cubic B-splines of ``q`` (nearly linear in
+  ``ap``), one per smooth piece between the kinks, nodes doubled until the spline reproduces
+  ``B`` at the midpoints to ``_FORCE_RTOL``.
 * **Torque and power** are exact. The limits bound the MEAN torque and power over a revolution
   (formats.md: a spindle's continuous rating; its inertia smooths the fluctuation within a
   revolution), and the mean torque is linear in depth (every slice has the same mean) and affine
@@ -44,9 +59,11 @@ How each function enters the NLP (smooth inside one pocket):
 Every pocket is started from the best point of a grid evaluated with the same functions (a pocket
 can hold several local optima of the surface error) and solved by IPOPT (one ``ca.Opti`` per
 harmonic count, the pocket as parameters). The best answers are re-checked with
-:func:`stability.lobes.predict_point`; a violated constraint is tightened in that pocket by the
-measured ratio and the pocket solved again. An answer that cannot be verified is never returned
-with ``success=True``.
+:func:`stability.lobes.predict_point` (the surface error on the whole wall from its forced
+response, :func:`wall_error`); a violated constraint is tightened in that pocket by the measured
+ratio and the pocket solved again. An answer that cannot be verified is never returned with
+``success=True``, nor one at which no constraint binds (the removal rate grows with speed, depth
+and feed, so an optimum lies on a constraint or a bound).
 """
 
 from __future__ import annotations
@@ -54,6 +71,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from itertools import combinations
 from typing import Literal
 
@@ -64,13 +82,14 @@ from scipy.interpolate import PchipInterpolator
 from oma._arrays import readonly as _ro
 from oma.errors import SetupError
 from stability.lobes import OperatingPoint, predict_point
+from stability.oriented import engaged_axial_integral, helix_lag_per_m
 from stability.sdm import as_modal_model
 
 from .cut_model import CutModel
 from .plan_results import CONSTRAINTS, Plan, PlanSettings, PocketResult
 from .pockets import Pocket, build_pockets, cheb_eval, sampled_pockets, sdm_pockets, zoa_pockets
 
-__all__ = ["PlanSettings", "PocketResult", "Plan", "plan", "CONSTRAINTS"]
+__all__ = ["PlanSettings", "PocketResult", "Plan", "plan", "wall_error", "CONSTRAINTS"]
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +99,212 @@ _PROCESS = ("stability", "surface_error", "force", "power", "torque")
 RPM_SCALE, DEPTH_SCALE, FEED_SCALE = 1e4, 1e-3, 1e-4
 
 Method = Literal["auto", "zoa", "sdm"]
+
+TWO_PI = 2.0 * np.pi
+
+
+# ------------------------------------------------------------------- peak force and the wall's SLE
+# Angles per tooth pitch of the peak search (as CutModel.peaks and stability.forced).
+_PEAK_GRID = 4096
+# Relative accuracy of the splines of the peak-force feed bound, checked at their midpoints: far
+# below PlanSettings.recheck_rtol, so that the re-check rarely has to back off.
+_FORCE_RTOL = 1e-5
+# Most nodes of one smooth piece of the force bound (a kink not at a known depth stops there).
+_FORCE_MAX_NODES = 257
+# Heights on the wall (fractions of the depth, NLP parameters) at which |SLE| can be bounded: an
+# NLP per harmonic count and number of heights on this ladder (each height costs as much as the
+# tip's surface error, so the NLP with the fewest heights that serves is taken).
+_WALL_SLOTS = (1, 2, 4, 8)
+# The dense search for the largest |SLE| on the wall: grid points per turn of the highest
+# harmonic over the depth (then zoomed in, :func:`_max_abs`).
+_WALL_POINTS_PER_TURN = 8
+# |SLE| is exceeded at an answer of the NLP when above the limit by this fraction (IPOPT's own
+# tolerance is ~1e-8; the exchange adds a height only for a real excess).
+_WALL_RTOL = 1e-6
+# Complex values per block of the dense evaluations (heights x harmonics): 16 MB.
+_CHUNK = 2**20
+
+
+def _feed_bound(cm: CutModel, limit_N: float, depths) -> np.ndarray:
+    """Largest feed per tooth, m, with the peak in-plane force within ``limit_N``, per depth (m).
+
+    At one tip angle the force is ``F_e + fz F_c`` (edge plus cutting part, both from
+    :func:`stability.oriented.engaged_axial_integral`), so ``|F|^2 = limit^2`` is a quadratic in
+    ``fz``; the bound is the smallest of its positive roots over the angles of
+    :meth:`CutModel.peaks` (a fine grid plus both sides of every angle where the force can jump).
+    Zero where the edge force alone exceeds the limit at some angle.
+    """
+    pitch = TWO_PI / cm.teeth
+    grid = pitch * np.arange(_PEAK_GRID) / _PEAK_GRID
+    out = np.empty(np.size(depths))
+    for i, a in enumerate(np.atleast_1d(np.asarray(depths, dtype=float))):
+        lag = cm.kappa * a
+        crit = np.mod(np.array([cm.st, cm.ex, cm.st + lag, cm.ex + lag])[:, None] - pitch * np.arange(cm.teeth),
+                      pitch).ravel()
+        phi = np.concatenate([grid, crit - 1e-9 * pitch, crit, crit + 1e-9 * pitch])
+        e = engaged_axial_integral(cm.tool, cm.cut, phi, a)
+        fe, fc = e @ cm.fc_e[:2].T, e @ cm.fc_c[:2].T
+        qa, qb, qc = np.sum(fc * fc, axis=1), 2.0 * np.sum(fe * fc, axis=1), np.sum(fe * fe, axis=1) - limit_N**2
+        if np.any(qc > 0):
+            out[i] = 0.0
+            continue
+        with np.errstate(divide="ignore"):  # -2 c / (b + sqrt(b^2 - 4 a c)): the root, without cancellation
+            out[i] = np.min(-2.0 * qc / (qb + np.sqrt(qb * qb - 4.0 * qa * qc)))
+    return out
+
+
+def _wall_amplitudes(cm: CutModel, n_harm: int, rpm, ap):
+    """Static coefficient (2,), harmonic amplitudes at the tip (2, I, J, H) and the turn per unit
+    height of each harmonic (H,), rad/m, of ``(S_c, S_e)``: rpm (I,), ap (I, J)."""
+    c = cm._sle_coeffs(n_harm)
+    rpm, ap = np.asarray(rpm, dtype=float), np.asarray(ap, dtype=float)
+    rho = c["h"][None, None, :] * (cm.teeth * rpm / 60.0)[:, None, None] / c["fn"][None, :, None]
+    inv_d = 1.0 / (1.0 - rho**2 + 2j * c["zeta"][None, :, None] * rho)  # (I, R, H)
+    acc = c["beta"][:, None, :] + np.einsum("prh,irh->pih", c["alpha"], inv_d)  # (2, I, H)
+    theta = c["theta"]
+    hel = ((1.0 - np.exp(-1j * theta * ap[..., None])) / (1j * theta) if cm.kappa
+           else ap[..., None] + 0j * theta)  # (I, J, H)
+    return c["static"], acc[:, :, None, :] * hel[None], theta
+
+
+def _wall_parts(cm: CutModel, n_harm: int, rpm, ap, frac):
+    """``(S_c, S_e)`` of the surface error at heights ``z = frac * ap`` on the finished wall, m
+    (``SLE(z) = fz S_c + S_e``; ``S_c`` per unit feed); ``frac = 0`` is the tip, as
+    :meth:`CutModel.sle_parts`.
+
+    The slice at height ``z`` reaches the finishing angle ``kappa z / Omega`` after the tip, so
+    harmonic ``h`` of the tool's displacement turns by ``exp(i h N kappa z)`` there (the profile
+    of :func:`stability.forced.forced_response`); the sum over the harmonics by Horner's rule.
+
+    Parameters
+    ----------
+    rpm : ndarray, shape (I,)
+    ap : ndarray, shape (I, J)
+        Depths at each speed, m.
+    frac : ndarray, shape (Z,)
+        Heights as fractions of the depth, in [0, 1].
+
+    Returns
+    -------
+    S_c, S_e : ndarray, shape (I, J, Z)
+    """
+    static, amp, theta = _wall_amplitudes(cm, n_harm, rpm, ap)
+    ap = np.asarray(ap, dtype=float)
+    turn = np.exp(1j * theta[0] * np.asarray(frac, dtype=float) * ap[..., None])  # (I, J, Z): harmonic 1
+    total = np.zeros((2,) + turn.shape, dtype=complex)
+    amp = np.ascontiguousarray(np.moveaxis(amp, -1, 0))[..., None]  # (H, 2, I, J, 1)
+    for h in range(n_harm - 1, -1, -1):  # sum_h amp_h turn^h, in place
+        total += amp[h]
+        total *= turn
+    out = static[:, None, None, None] * ap[None, ..., None] + 2.0 * total.real
+    return out[0], out[1]
+
+
+@lru_cache(maxsize=None)
+def _harmonic_turns(n_harm: int) -> ca.Function:
+    """``phi -> (cos(h phi), sin(h phi))`` for h = 1..n_harm (CasADi) by the Chebyshev recurrence
+    ``c_{h+1} = 2 cos(phi) c_h - c_{h-1}``: one sine and one cosine, not ``n_harm`` of each
+    (rounding grows like ``h`` ulps)."""
+    phi = ca.SX.sym("phi")
+    c1, s1 = ca.cos(phi), ca.sin(phi)
+    cos_h, sin_h = [c1], [s1]
+    prev_c, prev_s = ca.SX(1.0), ca.SX(0.0)
+    for _ in range(n_harm - 1):
+        nc, ns = 2.0 * c1 * cos_h[-1] - prev_c, 2.0 * c1 * sin_h[-1] - prev_s
+        prev_c, prev_s = cos_h[-1], sin_h[-1]
+        cos_h.append(nc)
+        sin_h.append(ns)
+    return ca.Function(f"turns_{n_harm}", [phi], [ca.vertcat(*cos_h), ca.vertcat(*sin_h)])
+
+
+def _wall_function(cm: CutModel, n_harm: int, slots: int) -> ca.Function:
+    """``(rpm, ap, frac[slots]) -> (S_c, S_e)`` at heights ``frac * ap`` (CasADi, the sums of
+    :func:`_wall_parts`), m."""
+    c = cm._sle_coeffs(n_harm)
+    rpm, ap, frac = ca.SX.sym("rpm"), ca.SX.sym("ap"), ca.SX.sym("frac", slots)
+    f_tooth = cm.teeth * rpm / 60.0
+    theta_1 = float(c["theta"][0]) if n_harm else 0.0
+    if cm.kappa:  # hel_h = (1 - exp(-i theta_h ap)) / (i theta_h)
+        cos_a, sin_a = _harmonic_turns(n_harm)(theta_1 * ap)
+        th = ca.DM(c["theta"])
+        hel_re, hel_im = sin_a / th, -(1.0 - cos_a) / th
+    else:
+        hel_re, hel_im = ca.DM.ones(n_harm) * ap, ca.DM.zeros(n_harm) * ap
+    inv_d = []  # 1 / D_r(h f_T) of each mode, shared by both parts
+    for q in range(c["fn"].size):
+        rho = ca.DM(c["h"] / c["fn"][q]) * f_tooth
+        a_re, a_im = 1.0 - rho**2, 2.0 * c["zeta"][q] * rho
+        den = a_re**2 + a_im**2
+        inv_d.append((a_re / den, -a_im / den))
+    amp = []
+    for p in range(2):
+        acc_re, acc_im = ca.DM(c["beta"][p].real) + 0 * rpm, ca.DM(c["beta"][p].imag) + 0 * rpm
+        for q, (g_re, g_im) in enumerate(inv_d):
+            al_re, al_im = ca.DM(c["alpha"][p, q].real), ca.DM(c["alpha"][p, q].imag)
+            acc_re = acc_re + al_re * g_re - al_im * g_im
+            acc_im = acc_im + al_re * g_im + al_im * g_re
+        amp.append((acc_re * hel_re - acc_im * hel_im, acc_re * hel_im + acc_im * hel_re))
+    rows = ([], [])
+    for k in range(slots):
+        cos_z, sin_z = _harmonic_turns(n_harm)(theta_1 * frac[k] * ap)
+        for p, (amp_re, amp_im) in enumerate(amp):
+            rows[p].append(c["static"][p] * ap + 2.0 * ca.sum1(amp_re * cos_z - amp_im * sin_z))
+    return ca.Function(f"wall_{n_harm}_{slots}", [rpm, ap, frac], [ca.vertcat(*r) for r in rows],
+                       ["rpm", "ap", "frac"], ["S_c", "S_e"])
+
+
+def _peaks(v) -> np.ndarray:
+    """Indices of the local maxima of ``v`` (the ends included), largest first."""
+    pad = np.concatenate([[-np.inf], v, [-np.inf]])
+    peaks = np.flatnonzero((pad[1:-1] >= pad[:-2]) & (pad[1:-1] >= pad[2:]))
+    return peaks[np.argsort(v[peaks])[::-1]]
+
+
+def _max_abs(fn, lo: float, hi: float, n: int, *, keep: int = 3, zooms: int = 3) -> tuple[float, float]:
+    """Largest ``|fn(z)|`` over ``[lo, hi]`` and where (``fn`` vectorised): a grid of ``n`` points,
+    then ``zooms`` grids of 33 points between the neighbours of each of the ``keep`` best local
+    maxima (each zoom shrinks the bracket 16 times)."""
+    z = np.linspace(lo, hi, max(int(n), 3))
+    v = np.abs(fn(z))
+    best_v, best_z = float(v.max()), float(z[np.argmax(v)])
+    for k in _peaks(v)[:keep]:
+        a, b = z[max(k - 1, 0)], z[min(k + 1, z.size - 1)]
+        for _ in range(zooms):
+            zz = np.linspace(a, b, 33)
+            vv = np.abs(fn(zz))
+            j = int(np.argmax(vv))
+            if vv[j] > best_v:
+                best_v, best_z = float(vv[j]), float(zz[j])
+            a, b = zz[max(j - 1, 0)], zz[min(j + 1, zz.size - 1)]
+    return best_v, best_z
+
+
+def _wall_points(n_harm: int, theta_1: float, ap: float) -> int:
+    """Grid points for the dense search of |SLE| on a wall of height ``ap``:
+    ``_WALL_POINTS_PER_TURN`` per turn of the highest harmonic over the depth."""
+    turns = n_harm * theta_1 * ap / TWO_PI
+    return int(np.clip(np.ceil(_WALL_POINTS_PER_TURN * turns) + 1, 17, 8193))
+
+
+def wall_error(point: OperatingPoint, tool, cut) -> tuple[float, float]:
+    """Largest ``|SLE|`` on the finished wall of a predicted cut, m, and its height above the
+    tip, m: the steady displacement of :func:`stability.lobes.predict_point`'s forced response
+    along the wall's normal at the instant each height is finished (the instant of the tip plus
+    ``kappa z / Omega``; ``surface_location_error_profile`` samples the same function), on a grid
+    that resolves every harmonic summed, zoomed in on its peaks."""
+    fr = point.forced
+    kappa = helix_lag_per_m(tool)
+    omega = TWO_PI * fr.spindle_rpm / 60.0
+    sign = 1.0 if cut.milling == "down" else -1.0
+    normal = np.asarray(cut.normal_direction, dtype=float)
+
+    def sle(z):
+        t = fr.finishing_time_s + kappa * np.asarray(z) / omega
+        step = max(1, _CHUNK // (fr.harmonics + 1))  # displacement_at holds (3, len(t), harmonics)
+        return sign * np.concatenate([normal @ fr.displacement_at(t[i:i + step]) for i in range(0, t.size, step)])
+
+    n = _wall_points(fr.harmonics, tool.teeth * kappa, fr.axial_depth_m)
+    return _max_abs(sle, 0.0, fr.axial_depth_m, n)
 
 
 # ------------------------------------------------------------------------------------ the problem
@@ -117,7 +342,6 @@ class _NLP:
     opti: ca.Opti
     x: tuple
     p: tuple
-    sle_fn: ca.Function
 
 
 # IPOPT return states taken as converged.
@@ -126,50 +350,118 @@ _CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 _HARMONIC_LADDER = (32, 64, 128, 256, 512, 1024, 2048)
 # Longest Chebyshev series of a pocket's limit (degree 128).
 _MAX_COEFFS = 129
+# Solver status of a pocket whose answer is its start point (the NLP found nothing better): a grid
+# point, not an optimum.
+_START_KEPT = "start_point_kept"
+# The NLP's answer counts as worse than its start point below this fraction of its removal rate.
+_SEED_RTOL = 1e-6
 
 
 class _Problem:
-    """Everything the NLPs share: the cut model, the peak-force boundary, the limits."""
+    """Everything the NLPs share: the cut model, the peak-force bound, the limits."""
 
     def __init__(self, setup, model, settings: PlanSettings):
         self.setup, self.settings = setup, settings
         self.b = _bounds(setup)
         self.cm = CutModel(model, setup.tool, setup.cut, setup.material.cutting_coefficients)
-        fz_lo, fz_hi = self.b.fz
-        self.fixed_feed = fz_hi <= fz_lo
-        # The spline's grid reaches 5 % of the feed range beyond each bound: a B-spline is zero
-        # outside its grid, and IPOPT may step past a bound by its bound relaxation (~1e-8).
-        pad = 0.05 * (fz_hi - fz_lo)
-        self.feed_nodes = (np.array([fz_lo]) if self.fixed_feed
-                           else np.linspace(max(fz_lo - pad, 0.5 * fz_lo), fz_hi + pad, settings.force_feed_nodes))
-        self._nlps: dict[int, _NLP] = {}
-        self.boundary: dict[str, tuple[np.ndarray, ca.Function | None]] = {}
-        if self.b.force is not None:
-            depth = self.cm.depth_boundary(0, float(self.b.force), self.feed_nodes, *self.b.ap)
-            fn = None if self.fixed_feed else ca.interpolant("force_boundary", "bspline", [self.feed_nodes], depth)
-            self.boundary["force"] = (depth, fn)
+        self.fixed_feed = self.b.fz[1] <= self.b.fz[0]
+        self._nlps: dict[tuple[int, int], _NLP] = {}
+        self.force_area = None if self.b.force is None else self._force_area()
 
-    def boundary_depth(self, name, fz):
-        """Depth boundary of ``name`` (the peak force, 'force') at feed ``fz`` (NumPy or CasADi)."""
-        depth, fn = self.boundary[name]
-        if fn is None:
-            return float(depth[0]) + 0.0 * fz
-        if isinstance(fz, (ca.MX, ca.SX)):
-            return fn(fz)
-        u, inv = np.unique(np.asarray(fz, dtype=float), return_inverse=True)  # few distinct feeds
-        return np.asarray(fn(u[None, :])).ravel()[inv].reshape(np.shape(fz))
+    # ---- peak force -------------------------------------------------------------------------------
+    def _force_area(self) -> ca.Function:
+        """``q(ap) = ap B(ap)``, m^2 (CasADi): the largest chip area ``ap fz`` with the peak force
+        within the limit (:func:`_feed_bound`), cubic B-splines between the kinks of ``B``."""
+        cm, (lo, hi), limit = self.cm, self.b.ap, float(self.b.force)
+        # the splines reach 5 % beyond the depth range: a B-spline is zero outside its grid, and
+        # IPOPT may step past a bound by its bound relaxation (~1e-8)
+        pad = 0.05 * (hi - lo if hi > lo else lo)
+        a0, a1 = max(lo - pad, 0.5 * lo), hi + pad
+        kinks = np.array([])
+        if cm.kappa:
+            pitch, width = TWO_PI / cm.teeth, cm.ex - cm.st
+            m = np.arange(int(cm.kappa * a1 / pitch) + 2)
+            kinks = np.concatenate([m * pitch, m * pitch + width, m * pitch - width]) / cm.kappa
+            kinks = np.unique(kinks[(kinks > a0 * (1 + 1e-6)) & (kinks < a1 * (1 - 1e-6))])
+        edges = np.concatenate([[a0], kinks, [a1]])
+        x = ca.MX.sym("ap")
+        expr, worst = None, 0.0
+        for e0, e1 in zip(edges[::-1][1:], edges[::-1][:-1]):  # from the deepest piece down
+            nodes = np.linspace(e0, e1, self.settings.force_feed_nodes)
+            area = nodes * _feed_bound(cm, limit, nodes)
+            while True:
+                fn = ca.interpolant("force_area", "bspline", [nodes], area)
+                mid = 0.5 * (nodes[1:] + nodes[:-1])
+                want = mid * _feed_bound(cm, limit, mid)
+                got = np.asarray(fn.map(mid.size)(mid[None, :])).ravel()
+                err = float(np.max(np.abs(got - want) / np.maximum(want, mid * self.b.fz[0])))
+                if err <= _FORCE_RTOL or nodes.size >= _FORCE_MAX_NODES:
+                    break
+                nodes, area = (np.insert(v, np.arange(1, v.size), w) for v, w in ((nodes, mid), (area, want)))
+            worst = max(worst, err)
+            expr = fn(x) if expr is None else ca.if_else(x < e1, fn(x), expr)
+        log.info("peak-force bound: %d pieces, spline error %.1e at the midpoints", edges.size - 1, worst)
+        return ca.Function("force_area", [x], [expr])
 
-    def masks(self, pocket: Pocket, n_harm, rpm, ap, fz, factors, sle_parts=None) -> dict[str, np.ndarray]:
+    def area(self, ap):
+        """:meth:`_force_area` at depths ``ap`` (NumPy array or CasADi symbol), m^2."""
+        if isinstance(ap, (ca.MX, ca.SX)):
+            return self.force_area(ap)
+        u, inv = np.unique(np.asarray(ap, dtype=float), return_inverse=True)
+        return np.asarray(self.force_area.map(u.size)(u[None, :])).ravel()[inv].reshape(np.shape(ap))
+
+    # ---- surface error on the wall ----------------------------------------------------------------
+    def wall_profile(self, n_harm: int, x):
+        """The SLE along the wall at ``x = (rpm, ap, fz)``, m, as a function of the height fraction
+        (vectorised), and the number of grid points that resolves it (:func:`_wall_points`)."""
+        rpm, ap, fz = (float(v) for v in x)
+        static, amp, theta = _wall_amplitudes(self.cm, n_harm, [rpm], [[ap]])
+        amp = fz * amp[0, 0, 0] + amp[1, 0, 0]  # (H,)
+        base = (fz * static[0] + static[1]) * ap
+        step = max(1, _CHUNK // n_harm)
+
+        def fn(frac):
+            z = np.atleast_1d(frac) * ap
+            return base + 2.0 * np.concatenate([np.real(np.exp(1j * np.multiply.outer(z[i:i + step], theta)) @ amp)
+                                                for i in range(0, z.size, step)])
+
+        return fn, _wall_points(n_harm, self.cm.teeth * self.cm.kappa, ap)
+
+    def wall_max(self, n_harm: int, x) -> tuple[float, float]:
+        """Largest ``|SLE|`` on the wall at ``x`` (the NLP's model), m, and its height fraction."""
+        fn, n = self.wall_profile(n_harm, x)
+        return _max_abs(fn, 0.0, 1.0, n)
+
+    def wall_start(self, n_harm: int, x, factor: float) -> list[float]:
+        """Height fractions to bound first: the local maxima of ``|SLE|`` at ``x`` above half the
+        limit, largest first (at least the largest)."""
+        fn, n = self.wall_profile(n_harm, x)
+        s = np.linspace(0.0, 1.0, n)
+        v = np.abs(fn(s))
+        peaks = _peaks(v)
+        high = [float(s[k]) for k in peaks if v[k] >= 0.5 * factor * self.b.sle]
+        return (high or [float(s[peaks[0]])])[: _WALL_SLOTS[-1] // 2]
+
+    def seed_fractions(self, pocket: Pocket, n_harm: int, ap_max: float) -> np.ndarray:
+        """Height fractions of the start grid: four per turn, over the deepest cut, of the harmonic
+        that meets the highest mode along the wall's normal at the pocket's lowest speed."""
+        c = self.cm._sle_coeffs(n_harm)
+        f_tooth = self.cm.teeth * pocket.rpm_lo / 60.0
+        h = max(1.0, float(np.max(c["fn"], initial=0.0)) / f_tooth)
+        turns = h * self.cm.teeth * self.cm.kappa * ap_max / TWO_PI
+        return np.linspace(0.0, 1.0, int(np.clip(np.ceil(4 * turns) + 1, 5, 33)))
+
+    # ---- constraints and start points -------------------------------------------------------------
+    def masks(self, pocket: Pocket, rpm, ap, fz, factors, sle_worst=None) -> dict[str, np.ndarray]:
         """Which constraints hold at points ``(rpm, ap, fz)`` (arrays of one shape), as the NLP sees
-        them (back-off factors included); ``sle_parts`` may give ``(S_c, S_e)`` at the points."""
+        them (back-off factors included); ``sle_worst``: the largest ``|SLE|`` on the wall there."""
         b = self.b
         rpm, ap, fz = (np.asarray(v, dtype=float) for v in np.broadcast_arrays(rpm, ap, fz))
         out = {"stability": ap <= factors["stability"] * b.margin * pocket.limit(rpm)}
         if b.sle is not None:
-            s_c, s_e = sle_parts if sle_parts is not None else self.cm.sle_parts(rpm, ap, n_harm)
-            out["surface_error"] = np.abs(fz * s_c + s_e) <= factors["surface_error"] * b.sle
-        if "force" in self.boundary:
-            out["force"] = ap <= factors["force"] * self.boundary_depth("force", fz)
+            out["surface_error"] = np.asarray(sle_worst) <= factors["surface_error"] * b.sle
+        if b.force is not None:
+            out["force"] = ap * fz <= factors["force"] * self.area(ap)
         if b.torque is not None:
             out["torque"] = self.cm.mean_torque(ap, fz) <= factors["torque"] * b.torque
         if b.power is not None:
@@ -180,10 +472,12 @@ class _Problem:
         """Best point of a pocket's start grid (or the least violating one) and the constraint masks.
 
         Speeds at Chebyshev points of the pocket (its ends included), depths geometric from the
-        lowest depth up to the stability cap at each speed, feeds evenly spaced; and, because
-        ``|SLE| <= tol`` can hold only in thin bands of depth (with a helix the dynamic surface
-        error cancels near multiples of the axial pitch), the crossings in depth of zero and of
-        the band edges ``+-0.999 tol`` at every speed and feed as extra depths.
+        lowest depth up to the stability cap at each speed, feeds evenly spaced; the surface error
+        at :meth:`seed_fractions` of each depth. Because ``|SLE| <= tol`` can hold only in thin
+        bands of depth (with a helix the force harmonics cancel near multiples of the axial
+        pitch), the crossings in depth of the band edges (``max |SLE|`` at ``0.999 tol``) and of
+        ``0``, ``+-0.999 tol`` by the SLE at the tip and at the top of the wall, at every speed
+        and feed, are extra depths.
         """
         s, b = self.settings, self.b
         x = np.cos(np.pi * np.arange(s.seed_speeds) / (s.seed_speeds - 1))[::-1]
@@ -192,32 +486,32 @@ class _Problem:
         cap = np.clip(factors["stability"] * b.margin * pocket.limit(rpm), b.ap[0], b.ap[1])
         t = np.linspace(0.0, 1.0, s.seed_depths)
         ap = b.ap[0] * (cap[:, None] / b.ap[0]) ** t[None, :]  # (I, J)
-        fz = self.feed_nodes[:1] if self.fixed_feed else np.linspace(b.fz[0], b.fz[1], s.seed_feeds)
+        fz = np.array(b.fz[:1]) if self.fixed_feed else np.linspace(b.fz[0], b.fz[1], s.seed_feeds)
         shape = ap.shape + (fz.size,)
-        pts = [np.broadcast_to(rpm[:, None, None], shape), np.broadcast_to(ap[..., None], shape),
-               np.broadcast_to(fz, shape)]
-        parts = None
+        pts = [np.broadcast_to(rpm[:, None, None], shape).ravel(), np.broadcast_to(ap[..., None], shape).ravel(),
+               np.broadcast_to(fz, shape).ravel()]
+        worst = None
         if b.sle is not None:
-            s_c, s_e = self.cm.sle_parts(np.broadcast_to(rpm[:, None], ap.shape), ap, n_harm)
-            sle = fz * s_c[..., None] + s_e[..., None]  # (I, J, K)
-            parts = [np.broadcast_to(s_c[..., None], shape).ravel(), np.broadcast_to(s_e[..., None], shape).ravel()]
-            # crossings of zero and of the band edges (just inside) in depth
+            frac = self.seed_fractions(pocket, n_harm, float(cap.max()))
+            s_c, s_e = _wall_parts(self.cm, n_harm, rpm, ap, frac)  # (I, J, Z)
+            sle = fz * s_c[..., None] + s_e[..., None]  # (I, J, Z, K)
+            big = np.max(np.abs(sle), axis=2)  # (I, J, K)
             tol = 0.999 * factors["surface_error"] * b.sle
             xs = [[], [], []]
-            for level in (-tol, 0.0, tol):
-                g = sle - level
+            for g0, level in [(big, tol)] + [(sle[:, :, z], v) for z in (0, -1) for v in (-tol, 0.0, tol)]:
+                g = g0 - level
                 i, j, k = np.nonzero(np.sign(g[:, :-1]) * np.sign(g[:, 1:]) < 0)
                 w = g[i, j, k] / (g[i, j, k] - g[i, j + 1, k])
                 xs[0].append(rpm[i])
                 xs[1].append(ap[i, j] + w * (ap[i, j + 1] - ap[i, j]))
                 xs[2].append(fz[k])
             xs = [np.concatenate(v) for v in xs]
+            worst = big.ravel()
             if xs[0].size:
-                xc, xe = self.cm.sle_parts(xs[0], xs[1], n_harm)
-                pts = [np.concatenate([p.ravel(), v]) for p, v in zip(pts, xs)]
-                parts = [np.concatenate([parts[0], xc]), np.concatenate([parts[1], xe])]
-        pts = [np.ravel(p) for p in pts]
-        masks = self.masks(pocket, n_harm, *pts, factors, sle_parts=parts)
+                xc, xe = _wall_parts(self.cm, n_harm, xs[0], xs[1][:, None], frac)  # (P, 1, Z)
+                worst = np.concatenate([worst, np.max(np.abs(xs[2][:, None] * xc[:, 0] + xe[:, 0]), axis=1)])
+                pts = [np.concatenate([p, v]) for p, v in zip(pts, xs)]
+        masks = self.masks(pocket, *pts, factors, sle_worst=worst)
         ok = np.logical_and.reduce(list(masks.values()))
         mrr = pts[0] * pts[1] * pts[2]
         if ok.any():
@@ -233,22 +527,25 @@ class _Problem:
         need = self.cm.harmonics_at(pocket.rpm_lo)
         return int(next((h for h in _HARMONIC_LADDER if h >= need), need))
 
-    def nlp(self, n_harm: int) -> _NLP:
-        """The pocket NLP with ``n_harm`` harmonics, built once; the pocket is a set of parameters.
+    def nlp(self, n_harm: int, slots: int = 1) -> _NLP:
+        """The pocket NLP with ``n_harm`` harmonics and ``slots`` heights on the wall, built once;
+        the pocket is a set of parameters.
 
         Scaled variables ``rpm / 1e4``, ``ap / 1 mm``, ``fz / 0.1 mm``; parameters: the pocket's
-        speed interval, the Chebyshev coefficients of its limit depth (zero-padded) and the
-        back-off factor of each process constraint. Objective: ``-MRR`` scaled to order one.
+        speed interval, the Chebyshev coefficients of its limit depth (zero-padded), the back-off
+        factor of each process constraint, and the heights on the wall at which ``|SLE|`` is
+        bounded (fractions of the depth) with a switch each (1: bounded, 0: a free slot).
+        Objective: ``-MRR`` scaled to order one.
         """
-        if n_harm in self._nlps:
-            return self._nlps[n_harm]
+        if (n_harm, slots) in self._nlps:
+            return self._nlps[n_harm, slots]
         b, s = self.b, self.settings
-        sle_fn = self.cm.sle_function(n_harm)
         opti = ca.Opti()
         xn, xa, xf = opti.variable(), opti.variable(), opti.variable()
         rpm_lo, rpm_hi = opti.parameter(), opti.parameter()
         coef = opti.parameter(_MAX_COEFFS)
         fac = opti.parameter(len(_PROCESS))
+        frac, on = opti.parameter(slots), opti.parameter(slots)
         factor = dict(zip(_PROCESS, ca.vertsplit(fac)))
         rpm, ap, fz = RPM_SCALE * xn, DEPTH_SCALE * xa, FEED_SCALE * xf
         opti.subject_to(opti.bounded(rpm_lo / RPM_SCALE, xn, rpm_hi / RPM_SCALE))
@@ -261,10 +558,10 @@ class _Problem:
         limit = cheb_eval(ca.vertsplit(coef), x_cheb)
         opti.subject_to(xa <= factor["stability"] * b.margin * limit / DEPTH_SCALE)
         if b.sle is not None:
-            s_c, s_e = sle_fn(rpm, ap)
-            opti.subject_to(opti.bounded(-1.0, (fz * s_c + s_e) / (factor["surface_error"] * b.sle), 1.0))
-        if "force" in self.boundary:
-            opti.subject_to(xa <= factor["force"] * self.boundary_depth("force", fz) / DEPTH_SCALE)
+            s_c, s_e = _wall_function(self.cm, n_harm, slots)(rpm, ap, frac)
+            opti.subject_to(opti.bounded(-1.0, on * (fz * s_c + s_e) / (factor["surface_error"] * b.sle), 1.0))
+        if b.force is not None:
+            opti.subject_to(xa * xf <= factor["force"] * self.area(ap) / (DEPTH_SCALE * FEED_SCALE))
         if b.torque is not None:
             opti.subject_to(self.cm.mean_torque(ap, fz) / (factor["torque"] * b.torque) <= 1.0)
         if b.power is not None:
@@ -274,57 +571,85 @@ class _Problem:
         # mu_init: every solve starts from the best point of a seed grid, close to an optimum
         opti.solver("ipopt", {"print_time": False, "expand": True},
                     {"print_level": 0, "sb": "yes", "max_iter": s.max_iter, "mu_init": 1e-3})
-        nlp = _NLP(opti, (xn, xa, xf), (rpm_lo, rpm_hi, coef, fac), sle_fn)
-        self._nlps[n_harm] = nlp
+        nlp = _NLP(opti, (xn, xa, xf), (rpm_lo, rpm_hi, coef, fac, frac, on))
+        self._nlps[n_harm, slots] = nlp
         return nlp
 
-    def surrogate_ok(self, pocket, n_harm, x, factors, rtol=1e-6) -> bool:
-        """Whether ``x`` meets the pocket's constraints (as the NLP sees them) to ``rtol``."""
-        m = self.masks(pocket, n_harm, np.array([x[0]]), np.array([x[1] * (1 - rtol)]), np.array([x[2]]),
-                       {k: v * (1 + rtol) for k, v in factors.items()})
+    def surrogate_ok(self, pocket, n_harm, x, factors, rtol=1e-6, *, wall=None) -> bool:
+        """Whether ``x`` meets the pocket's constraints (as the NLP sees them, the surface error on
+        the whole wall; ``wall``: its largest ``|SLE|`` at ``x`` if known) to ``rtol``."""
+        if self.b.sle is not None and wall is None:
+            wall = self.wall_max(n_harm, x)[0]
+        m = self.masks(pocket, np.array([x[0]]), np.array([x[1] * (1 - rtol)]), np.array([x[2]]),
+                       {k: v * (1 + rtol) for k, v in factors.items()}, sle_worst=wall)
         return all(bool(v.all()) for v in m.values())
 
-    def solve_pocket(self, pocket: Pocket, factors):
-        """Seed grid, then IPOPT from its best point. Returns (seed, answer, feasible, status, masks)."""
-        n_harm = self.harmonics(pocket)
-        nlp = self.nlp(n_harm)
-        seed, seed_ok, masks = self.seed(pocket, n_harm, factors)
+    def _ipopt(self, nlp: _NLP, pocket: Pocket, factors, heights, start):
+        """IPOPT on ``pocket`` from ``start``, then once more from its last iterate if it stopped
+        short. Returns (answer, status)."""
         opti, (xn, xa, xf) = nlp.opti, nlp.x
-        p_lo, p_hi, p_coef, p_fac = nlp.p
+        p_lo, p_hi, p_coef, p_fac, p_frac, p_on = nlp.p
+        slots = p_frac.shape[0]
         opti.set_value(p_lo, pocket.rpm_lo)
         opti.set_value(p_hi, pocket.rpm_hi)
         opti.set_value(p_coef, np.pad(pocket.coeffs, (0, _MAX_COEFFS - pocket.coeffs.size)))
         opti.set_value(p_fac, [factors[k] for k in _PROCESS])
-        start = seed
-        for _ in range(2):  # a second solve from the last iterate when IPOPT stops short
+        opti.set_value(p_frac, np.pad(np.asarray(heights, dtype=float), (0, slots - len(heights))))
+        opti.set_value(p_on, [1.0] * len(heights) + [0.0] * (slots - len(heights)))
+        for _ in range(2):
             opti.set_initial(xn, start[0] / RPM_SCALE)
             opti.set_initial(xa, start[1] / DEPTH_SCALE)
             opti.set_initial(xf, start[2] / FEED_SCALE)
             try:
                 sol = opti.solve()
                 x = np.array([sol.value(xn) * RPM_SCALE, sol.value(xa) * DEPTH_SCALE, sol.value(xf) * FEED_SCALE])
-            except RuntimeError:  # not converged: the last iterate, judged below
+            except RuntimeError:  # not converged: the last iterate, judged by the caller
                 x = np.array([opti.debug.value(xn) * RPM_SCALE, opti.debug.value(xa) * DEPTH_SCALE,
                               opti.debug.value(xf) * FEED_SCALE])
             status = str(opti.stats().get("return_status", "unknown"))
             if status in _CONVERGED or not np.all(np.isfinite(x)):
                 break
             start = x
-        x = np.clip(x, [pocket.rpm_lo, self.b.ap[0], self.b.fz[0]], [pocket.rpm_hi, self.b.ap[1], self.b.fz[1]])
-        ok = bool(np.all(np.isfinite(x))) and self.surrogate_ok(pocket, n_harm, x, factors)
-        if seed_ok and (not ok or np.prod(x) < np.prod(seed)):  # never worse than the seed grid
-            x, ok = seed, True
+        return x, status
+
+    def solve_pocket(self, pocket: Pocket, factors):
+        """Seed grid, then IPOPT from its best point; with a surface-error limit, an exchange: the
+        height of the largest ``|SLE|`` on the wall at the answer is bounded too and the NLP solved
+        again, until none exceeds the limit. Returns (seed, answer, feasible, status, masks)."""
+        n_harm = self.harmonics(pocket)
+        seed, seed_ok, masks = self.seed(pocket, n_harm, factors)
+        limits = [pocket.rpm_lo, self.b.ap[0], self.b.fz[0]], [pocket.rpm_hi, self.b.ap[1], self.b.fz[1]]
+        heights = [] if self.b.sle is None else self.wall_start(n_harm, seed, factors["surface_error"])
+        start, wall = seed, None
+        while True:
+            slots = next(k for k in _WALL_SLOTS if k >= len(heights))
+            x, status = self._ipopt(self.nlp(n_harm, slots), pocket, factors, heights, start)
+            if self.b.sle is None or not np.all(np.isfinite(x)):
+                break
+            wall, at = self.wall_max(n_harm, np.clip(x, *limits))
+            if wall <= factors["surface_error"] * self.b.sle * (1 + _WALL_RTOL) or len(heights) == _WALL_SLOTS[-1]:
+                break
+            heights.append(at)
+            start = x
+        x = np.clip(x, *limits)
+        ok = bool(np.all(np.isfinite(x))) and self.surrogate_ok(pocket, n_harm, x, factors, wall=wall)
+        # never worse than the seed grid (a start point on the optimum, e.g. at a corner of the
+        # bounds, comes back from IPOPT within its tolerance, ~1e-8: that is the NLP's answer)
+        if (seed_ok and (not ok or np.prod(x) < (1 - _SEED_RTOL) * np.prod(seed))
+                and self.surrogate_ok(pocket, n_harm, seed, factors)):
+            x, ok, status = seed, True, _START_KEPT
         return seed, x, ok, status, masks
 
     # ---- re-check ---------------------------------------------------------------------------------
     def ratios(self, point: OperatingPoint) -> dict[str, float]:
-        """Value / limit of every process constraint at a predicted point (> 1: violated)."""
+        """Value / limit of every process constraint at a predicted point (> 1: violated); the
+        surface error on the whole wall (:func:`wall_error`)."""
         b = self.b
         stab = point.axial_depth_m / (b.margin * point.depth_limit_m)
         # unstable at a depth below the limit found (SDM: several crossings; ZOA: exactly at it)
         out = {"stability": stab if point.stable else max(stab, 1.0 + 10 * self.settings.recheck_rtol)}
         if b.sle is not None:
-            out["surface_error"] = abs(point.surface_location_error_m) / b.sle
+            out["surface_error"] = wall_error(point, self.setup.tool, self.setup.cut)[0] / b.sle
         if b.force is not None:
             out["force"] = point.peak_force_N / b.force
         if b.torque is not None:
@@ -487,11 +812,18 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
                     mrr_m3_s=None, active_constraints=(), infeasible_constraint=culprit, point=None, **common)
     x = results[best].solution
     active = _active(prob, point, x)
+    names = [f"surface_error at z = {wall_error(point, tool, cut)[1] * 1e3:.3g} mm" if a == "surface_error" else a
+             for a in active]
     msg = (f"{x[0]:.0f} rpm, depth {x[1] * 1e3:.3g} mm, feed {x[2] * 1e3:.3g} mm/tooth: "
-           f"{_mrr(setup, x) * 1e6:.4g} cm^3/s; active: {', '.join(active) or 'none'}")
-    converged = results[best].solver_status in _CONVERGED
-    if not converged:
-        msg = f"IPOPT did not converge ({results[best].solver_status}); best verified point {msg}"
+           f"{_mrr(setup, x) * 1e6:.4g} cm^3/s; active: {', '.join(names) or 'none'}")
+    status = results[best].solver_status
+    converged = status in _CONVERGED and bool(active)
+    if status == _START_KEPT:
+        msg = f"the NLP found nothing better than its start grid; best verified point {msg}"
+    elif status not in _CONVERGED:
+        msg = f"IPOPT did not converge ({status}); best verified point {msg}"
+    elif not active:  # the removal rate grows with speed, depth and feed: an optimum is on a constraint
+        msg = f"no constraint binds, so this is no optimum; best verified point {msg}"
     return Plan(converged, "optimal" if converged else "not_converged", msg, spindle_rpm=float(x[0]),
                 axial_depth_m=float(x[1]), feed_per_tooth_m=float(x[2]), mrr_m3_s=_mrr(setup, x),
                 active_constraints=active, infeasible_constraint=None, point=point, **common)
