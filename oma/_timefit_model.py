@@ -32,10 +32,13 @@ def modal_response(p, f0, z0, fs, derivative=0):
 class _Problem:
     """The stacked variable-projection problem over records and outputs."""
 
-    def __init__(self, records, *, residual: bool):
+    def __init__(self, records, *, residual: bool, band_hz=(0.0, np.inf)):
         self.records = records  # list of dicts with p (n_in, n), y (n_out_all, n), t, nuis (n, k)
         self.residual = residual
         self.fs = records[0]["fs"]
+        # lowest and highest natural frequency a refinement may move a mode to (the band the
+        # records resolve)
+        self.min_frequency_hz, self.max_frequency_hz = float(band_hz[0]), float(band_hz[1])
         self.n_in = records[0]["p"].shape[0]
         self.outputs = records[0]["outputs"]
         self.derivative = records[0]["derivative"]  # output: displacement (0), velocity (1), acceleration (2)
@@ -44,14 +47,29 @@ class _Problem:
                        for k in range(len(self.outputs))])
         self.out_weight = 1.0 / np.sqrt(np.where(ms > 0, ms, 1.0))
 
+    def frequency_bounds(self, fn, step):
+        """Bounds of ``log fn`` for one refinement: ``+-step`` around ``fn``, inside the band.
+
+        Returns the start and the bounds; a start on or beyond an end of the band is moved just
+        inside it.
+        """
+        with np.errstate(divide="ignore"):
+            lo_cap, hi_cap = np.log(self.min_frequency_hz), np.log(self.max_frequency_hz)
+        th = np.clip(np.log(fn), lo_cap + 1e-6, hi_cap - 1e-6)
+        return th, np.maximum(th - step, lo_cap), np.minimum(th + step, hi_cap)
+
     def mode_columns(self, rec, f0, z0):
-        """Columns of one mode: its forced responses ``(n, n_in)`` and free responses ``(n, 2)``."""
+        """Columns of one mode: its forced responses ``(n, n_in)`` and free responses ``(n, 2)``
+        (zero on the samples left out of the fit)."""
         p, t = rec["p"], rec["t"]
         forced = modal_response(p, f0, z0, self.fs, self.derivative).T
         w = 2 * np.pi * f0
         wd = w * np.sqrt(max(1 - z0 * z0, 1e-12))
         env = np.exp(-z0 * w * t)
-        return forced, np.column_stack([env * np.cos(wd * t), env * np.sin(wd * t)])
+        free = np.column_stack([env * np.cos(wd * t), env * np.sin(wd * t)])
+        if rec.get("w") is not None:
+            forced, free = forced * rec["w"][:, None], free * rec["w"][:, None]
+        return forced, free
 
     def regressors(self, rec, fn, zeta):
         """Columns shared across records (residues, residual) and the record's own (free response)."""
@@ -69,6 +87,8 @@ class _Problem:
             env = np.exp(-z0 * w * t)
             own += [env * np.cos(wd * t), env * np.sin(wd * t)]
         own = np.array(own) if own else np.zeros((0, t.size))
+        if rec.get("w") is not None:  # samples left out of the fit: their rows are zero
+            return shared.T * rec["w"][:, None], own.T * rec["w"][:, None]
         return shared.T, own.T
 
     def solve(self, fn, zeta, *, full=False):
@@ -197,11 +217,16 @@ class _Problem:
         return a, r
 
 
-def _prepare(signals, harmonics, inputs, outputs, derivative=0):
+def _prepare(signals, harmonics, inputs, outputs, derivative=0, keep=None):
     """Per record: background force ``p``, output ``y`` (the measured quantity of order
-    ``derivative``), the nuisance basis (trend and harmonics) and its orthonormal basis."""
+    ``derivative``), the nuisance basis (trend and harmonics) and its orthonormal basis.
+
+    ``keep`` (one boolean array per record, or None) leaves samples out of the fit: their rows of
+    ``y`` and of every column are zero (``rec["w"]``), while the force still drives the model
+    through them (the structure's state runs on).
+    """
     recs = []
-    for s, h in zip(signals, harmonics):
+    for i, (s, h) in enumerate(zip(signals, harmonics)):
         fs = s.sample_rate_hz
         n = s.n_samples
         t = np.arange(n) / fs
@@ -209,10 +234,13 @@ def _prepare(signals, harmonics, inputs, outputs, derivative=0):
         hz = h.freq_hz if h is not None else np.zeros(0)
         p = f - fit_harmonic_signal(f, fs, hz, trend=True)
         nuis = harmonic_basis(t, hz, trend=True)
-        q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
         y = np.array(s.motion[outputs] if derivative else s.displacement_m[outputs])
+        w = None if keep is None or keep[i] is None or np.all(keep[i]) else np.asarray(keep[i], dtype=float)
+        if w is not None:
+            nuis, y = nuis * w[:, None], y * w
+        q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
         recs.append({"p": p, "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t, "nuis": nuis, "q_nuis": q_nuis,
                      "fs": fs, "outputs": list(outputs), "inputs": list(inputs), "step": s.quantisation_step_m,
-                     "derivative": derivative})
+                     "derivative": derivative, "w": w})
     return recs
 

@@ -6,7 +6,7 @@ Private module: :class:`TimeFit` and :class:`NoModeFound` are imported from :mod
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -44,6 +44,15 @@ class TimeFit:
         Whether the quantised-output likelihood was used.
     dropped_modes_hz, split_modes_hz : tuple
         Modes removed, and modes split in two, by the information criterion.
+    above_band_hz, below_band_hz : tuple
+        Modes the fit pinned at the top or the bottom of the band the records resolve
+        (``band_hz``): they stand for response the modes in the band cannot follow (of modes above
+        it, which the records cannot identify; slow drift, edge artefacts). They stay in the fit
+        (so that the modes in the band do not take up that response) and are left out of
+        ``model``.
+    band_hz : (float, float)
+        The band the records resolve, Hz: from :data:`oma.timefit.MIN_CYCLES` cycles in the
+        longest record up to :func:`oma.timefit.resolved_band_hz`.
     success : bool
     message : str
     frequency_se_hz, damping_se : ndarray, shape (n_modes,)
@@ -56,6 +65,9 @@ class TimeFit:
     n_blocks : int
         Blocks behind those standard errors (their intervals use ``n_blocks - 1`` degrees of
         freedom).
+    residual : ndarray, shape (3, n_samples_total) or None
+        Measured minus fitted output per sample, the records one after another (units of the
+        fitted quantity; NaN rows for outputs not measured).
     """
 
     model: ModalModel
@@ -66,11 +78,15 @@ class TimeFit:
     quantised: bool = False
     dropped_modes_hz: tuple = ()
     split_modes_hz: tuple = ()
+    above_band_hz: tuple = ()
+    below_band_hz: tuple = ()
+    band_hz: tuple = (0.0, np.inf)
     success: bool = True
     message: str = ""
     frequency_se_hz: np.ndarray | None = None
     damping_se: np.ndarray | None = None
     n_blocks: int = 0
+    residual: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
         for name in ("frequency_se_hz", "damping_se"):
@@ -78,9 +94,11 @@ class TimeFit:
                 object.__setattr__(self, name, np.full(self.model.n_modes, np.nan))
         for name in ("residues", "residual_rms_m", "fit_error", "noise_scale_m", "frequency_se_hz", "damping_se"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
+        if self.residual is not None:
+            object.__setattr__(self, "residual", _ro(self.residual))
 
 
-def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6):
+def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6, n_used=None):
     """Block-sandwich standard errors of ``(log fn, log zeta)`` of the least-squares fit.
 
     The poles solve ``sum_o w_o^2 d_o^T r_o = 0`` with ``d_o`` the derivative of output ``o``'s
@@ -89,7 +107,8 @@ def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6):
     and the scores summed over blocks (:func:`oma.quantised.block_labels`) give the sandwich, as
     for the likelihood (:func:`oma.quantised._block_sandwich`), with the white-residual standard
     error ``sigma_o^2 = rss_o / (N - K)`` as a floor. Returns the standard errors (2 n_modes,) and
-    the number of blocks (NaN errors below :data:`oma.quantised.MIN_BLOCKS`).
+    the number of blocks (NaN errors below :data:`oma.quantised.MIN_BLOCKS`). ``n_used``: the
+    samples fitted (rows of ``xd`` left out of the fit are zero), all rows by default.
     """
     n_m = fn.size
     _, starts = block_labels(prob.records, prob.fs, fn, zeta)
@@ -112,13 +131,20 @@ def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6):
     d -= np.einsum("nk,okj->onj", q_x, np.einsum("nk,onj->okj", q_x, d))  # projected off the linear columns
     s_mat = np.einsum("o,oni,onj->ij", w2, d, d)
     scores = np.add.reduceat(np.einsum("o,onj,on->nj", w2, d, resid), starts, axis=0)
-    sigma2 = np.sum(resid ** 2, axis=1) / max(n_tot - k, 1)
+    sigma2 = np.sum(resid ** 2, axis=1) / max((n_tot if n_used is None else n_used) - k, 1)
     try:
         s_inv = np.linalg.inv(s_mat)
     except np.linalg.LinAlgError:
         return nan, g_count
     model = s_inv @ np.einsum("o,oni,onj->ij", w2 ** 2 * sigma2, d, d) @ s_inv
     return sandwich_se(s_inv, scores, model), g_count
+
+
+def _full_residual(res, outputs):
+    """Residual rows of the fitted outputs placed in a (3, n) array, NaN elsewhere."""
+    out = np.full((3, res.shape[1]), np.nan)
+    out[outputs] = res
+    return out
 
 
 def _misfit(y_all, pred, nuis_part, recs, outputs, quantised):
@@ -140,7 +166,22 @@ def _misfit(y_all, pred, nuis_part, recs, outputs, quantised):
     return rms, ferr
 
 
-def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source, message) -> TimeFit:
+#: A mode within this relative distance of an end of the resolved band is pinned there (the
+#: refinements stop at the end itself; a mode that converged inside sits well away from it)
+AT_BAND_EDGE = 0.005
+
+
+def _band_edges(fn, visible, band_hz):
+    """Visible modes pinned at the top and at the bottom of the band (frequencies), and the mask
+    of all pinned modes."""
+    top = fn >= (1.0 - AT_BAND_EDGE) * band_hz[1]
+    bottom = fn <= (1.0 + AT_BAND_EDGE) * band_hz[0]
+    return (tuple(float(v) for v in fn[visible & top]), tuple(float(v) for v in fn[visible & bottom]),
+            top | bottom)
+
+
+def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source, message,
+                            band_hz=(0.0, np.inf)) -> TimeFit:
     """The :class:`TimeFit` of a modal-form likelihood fit (:func:`oma.quantised.modal_form_ml`)."""
     y_all = np.concatenate([rec["y_raw"] for rec in recs], axis=1)
     rms, ferr = _misfit(y_all, r1["pred"], r1["nuis_part"], recs, outputs, True)
@@ -157,6 +198,8 @@ def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source
     u2 = u**2 / (k * zeta)[:, None]
     visible = ok & np.any(u2 >= 0.01 * np.max(u2[ok], axis=0, keepdims=True), axis=1)
     dropped = list(dropped) + [float(f) for f in fn[~visible]]
+    above, below, edge = _band_edges(fn, visible, band_hz)
+    visible = visible & ~edge
     order = np.argsort(fn[visible])
     sel = np.flatnonzero(visible)[order]
     if sel.size == 0:
@@ -172,5 +215,6 @@ def _time_fit_from_rank_one(r1, recs, inputs, outputs, dropped, split_hz, source
     se_z = zeta[sel] * log_se[fn.size:][sel]
     return TimeFit(model=model, residues=residues, residual_rms_m=rms, fit_error=ferr, noise_scale_m=sigma,
                    quantised=True, dropped_modes_hz=tuple(dropped), split_modes_hz=tuple(split_hz),
-                   success=bool(r1["converged"]), message=message, frequency_se_hz=se_f, damping_se=se_z,
-                   n_blocks=int(n_blocks))
+                   above_band_hz=above, below_band_hz=below, band_hz=tuple(band_hz),
+                   residual=_full_residual(y_all - r1["pred"], outputs), success=bool(r1["converged"]),
+                   message=message, frequency_se_hz=se_f, damping_se=se_z, n_blocks=int(n_blocks))

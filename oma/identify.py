@@ -2,6 +2,9 @@
 
 Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
 
+0. Records: one pose (joint angles within :data:`oma._identify_checks.SAME_POSE_TOLERANCE_DEG`),
+   each cut window long enough for its force spectrum to separate the milling harmonics from the
+   background force; otherwise a :class:`~oma.errors.RecordError`.
 1. Harmonics: spindle and tooth-passing lines of each record, the spindle frequency refined from the
    force spectrum (:mod:`oma.harmonics`).
 2. Background force variance per axis from the force PSD with the harmonics removed.
@@ -12,7 +15,14 @@ Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
    With ``method='h1'`` this is the answer (the paper's estimator plus a fit).
 5. ``method='default'``: time-domain fit of the modal model to the measured force and displacement,
    started from step 4, with the exact likelihood of a quantised (tracker) displacement
-   (:mod:`oma.timefit`). No window, no leakage: it is what makes a 1.1 s cut usable.
+   (:mod:`oma.timefit`). No window, no leakage: it is what makes a 1.1 s cut usable. Motion that is
+   not rounded (velocity, acceleration, continuous displacement): samples no model explains
+   (spikes, the edge ringing of an FFT derivative) are left out and the fit repeated
+   (:mod:`oma._timefit_artefacts`), and the result is cross-checked against step 4 where that
+   resolves the modes (the H1 fit is reported when the time-domain fit misses the H1 estimate far
+   more).
+   No mode lies outside the band the records resolve: above 0.3 fs (the anti-alias roll-off) or
+   below 4 cycles in the longest record; a model that needed one there is not trusted.
 6. Detectability: the smallest background variance the displacement sensor can resolve through the
    identified model, per axis (:mod:`oma.detectability`); an axis below it is flagged and the model
    is marked untrusted.
@@ -28,8 +38,9 @@ import numpy as np
 from ._arrays import readonly as _ro
 from .detectability import Detectability, detectability
 from .errors import RecordError
+from ._identify_checks import (artefact_warnings, check_duration, check_same_pose, h1_disagreement, h1_misfit,
+                              keep_in_band)
 from ._linalg import single_threaded_blas
-from .fit import relative_fit_error
 from .modal_fit import ModalFit, fit_modal_model
 from .frf_estimate import FRFEstimate, estimate_frf, frf_agreement
 from .frf_table import FRFTable
@@ -39,7 +50,8 @@ from .record import Record
 from .signals import PreparedSignals, prepare_record
 from .synthetic import simulate_response
 from .quantised import MIN_BLOCKS
-from .timefit import NoModeFound, TimeFit, fit_time_domain
+from .timefit import NoModeFound, TimeFit, fit_time_domain, resolved_band_hz
+from ._timefit_artefacts import MAX_TRUSTED_SHARE, fit_without_artefacts
 
 __all__ = ["Identification", "identify", "modal_mapping", "frf_agreement", "METHODS", "ROBOT_BAND_HZ"]
 
@@ -123,7 +135,10 @@ class Identification:
         Per axis, whether the background force moves the tool enough for the displacement sensor
         (False for an axis without recorded motion).
     trusted : bool
-        Every measured axis sufficiently excited, the fit converged and its errors are acceptable.
+        Every measured axis sufficiently excited, the fit converged and its errors are acceptable,
+        no mode was needed outside the band the records resolve, at most 2 % of a record's samples
+        were left out of the fit as artefacts, and (unrounded motion) the time-domain fit agrees
+        with the H1 fit.
     harmonics : tuple of Harmonics
         One per record.
     warnings : tuple of str
@@ -259,7 +274,8 @@ def _fit_band(est: FRFEstimate, fs: float) -> tuple[float, float]:
     A line is coherent when the running median (five lines) of its multiple coherence exceeds the
     99 % point of the multiple coherence of unrelated Gaussian signals, a Beta(q, n_d - q)
     variable for ``q`` inputs and ``n_d`` averages (Goodman 1963; Bendat & Piersol). The band
-    ends at :data:`MAX_BAND_HZ` at most.
+    ends at :data:`MAX_BAND_HZ` at most, and below the anti-alias roll-off
+    (:func:`oma.timefit.resolved_band_hz`).
     """
     from scipy import stats
 
@@ -275,7 +291,7 @@ def _fit_band(est: FRFEstimate, fs: float) -> tuple[float, float]:
     coherent = np.any(smooth > threshold, axis=0)
     df = f[1] - f[0] if f.size > 1 else 1.0
     top = f[coherent].max() if np.any(coherent) else 0.1 * fs
-    hi = min(max(2.5 * top, 8 * df), 0.45 * fs, MAX_BAND_HZ)
+    hi = min(max(2.5 * top, 8 * df), resolved_band_hz(fs), MAX_BAND_HZ)
     return float(f.min()), float(hi)
 
 
@@ -322,9 +338,13 @@ def identify(
     Raises
     ------
     ValueError
-        Unknown ``method``, no records, records with different sampling rates.
+        Unknown ``method``, no records.
     RecordError
-        A record without force or motion channels, or a bad cut window.
+        A record without force or motion channels, a bad cut window, records with different
+        sampling rates or poses (joint angles more than
+        :data:`oma._identify_checks.SAME_POSE_TOLERANCE_DEG` apart), a cut window too short for
+        the force spectrum to resolve the milling harmonics
+        (:func:`oma._identify_checks.min_samples_for_harmonics`).
     """
     with single_threaded_blas():
         return _identify(records, method=method, nperseg=nperseg, band_hz=band_hz,
@@ -341,9 +361,12 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     for r in records[1:]:
         if abs(r.sample_rate_hz - fs) > 1e-9 * fs:
             raise RecordError(r.path, "sample_rate_hz", f"{fs} Hz like the first record", f"{r.sample_rate_hz} Hz")
+    check_same_pose(records)
     warnings: list[str] = []
 
     signals: list[PreparedSignals] = [prepare_record(r) for r in records]
+    for r, s in zip(records, signals):
+        check_duration(r, s.n_samples)
     harmonics: list[Harmonics | None] = []
     backgrounds: list[BackgroundEstimate] = []
     for r, s in zip(records, signals):
@@ -383,6 +406,7 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
                 raise
             warnings.append(f"H1 modal fit failed ({exc}); modes searched in the time domain")
     tfit = None
+    artefacts = None
     model = None if mfit is None else mfit.model
     if method == "default":
         start = None if mfit is None else mfit.model
@@ -392,12 +416,21 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         # when the Welch lines are narrower than every fitted mode's half-power band, the H1 fit
         # has found the modes and the time-domain fit refines them; otherwise (short records)
         # the time-domain fit searches for the modes itself
+        noise_n2 = [_force_error_variance(r) for r in records]
+
+        def refit(keep=None, previous=None):
+            # refits after the first start from the last one's modes (the first may have been led astray)
+            initial, search = (start, False) if resolved else (None, True)
+            if previous is not None:
+                initial, search = previous.model, False
+            return fit_time_domain(signals, harmonics, initial, search=search, force_noise_variance_N2=noise_n2,
+                                   keep_samples=keep, source={"method": "oma-time-domain", "records": names})
+
         try:
-            tfit = fit_time_domain(
-                signals, harmonics, start if resolved else None, search=not resolved,
-                force_noise_variance_N2=[_force_error_variance(r) for r in records],
-                source={"method": "oma-time-domain", "records": names},
-            )
+            tfit = refit()
+            if not tfit.quantised:
+                # samples no model explains (spikes, edge artefacts) are left out and the fit repeated
+                tfit, artefacts = fit_without_artefacts(signals, harmonics, tfit, refit)
         except NoModeFound as exc:  # no mode at all: nothing in the records but rounding noise
             if mfit is None:
                 try:
@@ -412,18 +445,29 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
             model = tfit.model
             if not tfit.success:
                 warnings.append(f"time-domain fit: {tfit.message}")
+        if artefacts is not None:
+            warnings += artefact_warnings(artefacts, names, fs)
+
+    # an unquantised time-domain fit far worse than the H1 fit of the same records was led astray
+    agree = True
+    if tfit is not None and mfit is not None and not tfit.quantised:
+        why = h1_disagreement(tfit.model, mfit.model, est, weights, band)
+        if why:
+            agree, model = False, mfit.model
+            warnings.append(why)
+
+    # no mode outside the band the records resolve; a model that needed one there is flagged
+    tfit_reported = tfit is not None and agree
+    model, band_warnings = keep_in_band(model, tfit if tfit_reported else None, fs)
+    warnings += band_warnings
+    band_ok = not band_warnings
 
     # fit error: for 'h1' the model against the H1 estimate (direct entries, weighted by the
     # inverse random error, in the fitted band); for the default the time-domain misfit beyond
     # the rounding noise (the H1 estimate itself is biased by the rounding, see oma.timefit)
     f = est.freq_hz
-    sel = (f >= band[0]) & (f <= band[1])
-    g = model.receptance(f[sel])
-    ferr = np.full(3, np.nan)
-    for a in range(3):
-        if est.table.measured[a, a]:
-            ferr[a] = float(relative_fit_error(est.receptance_m_N[a, a, sel], g[a, a], weights[a, a, sel]))
-    if tfit is not None:
+    ferr = h1_misfit(model, est, weights, band)
+    if tfit_reported:
         ferr = np.where(np.isfinite(ferr), tfit.fit_error, np.nan)
 
     # detectability over the longest record: the records are identified together, so the model is
@@ -477,23 +521,28 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
                 f"displacement sensor can resolve: the {AXES[a]} modes are not reliably identified"
             )
         if np.isfinite(ferr[a]) and ferr[a] > max_fit_error:
-            what = "the H1 estimate" if tfit is None else "the measured displacement (beyond its rounding)"
+            what = "the measured displacement (beyond its rounding)" if tfit_reported else "the H1 estimate"
             warnings.append(f"{AXES[a]}: the model misses {what} by {100 * ferr[a]:.0f} % (fit error)")
     for hz in model.natural_frequency_hz:
         for h in harmonics:
             if h is not None and np.any(np.abs(h.freq_hz[h.significant] - hz) < 2.0 * (f[1] - f[0])):
                 warnings.append(f"mode at {hz:.1f} Hz sits on a milling harmonic; its estimate is uncertain")
                 break
-    fit_ok = tfit.success if tfit is not None else (mfit.success and method == "h1")
+    fit_ok = tfit.success if tfit_reported else (mfit.success and method == "h1")
+    clean = artefacts is None or (artefacts.resolved and all(
+        artefacts.share(i) <= MAX_TRUSTED_SHARE for i in range(len(records))))
     trusted = bool(
         fit_ok
+        and band_ok
+        and clean
+        and agree
         and all(sufficient[a] for a in measured_axes)
         and all(not np.isfinite(ferr[a]) or ferr[a] <= max_fit_error for a in measured_axes)
     )
     if not trusted:
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     source = {
-        "method": "oma-h1" if tfit is None else ("oma-time-domain-ml" if tfit.quantised else "oma-time-domain-ls"),
+        "method": "oma-h1" if not tfit_reported else ("oma-time-domain-ml" if tfit.quantised else "oma-time-domain-ls"),
         "records": names,
         "fit_error": _num(np.nanmax(ferr)) if np.any(np.isfinite(ferr)) else None,
         "trusted": trusted,

@@ -181,6 +181,16 @@ def input_noise_scale(prob, fn, zeta, phi):
     return np.sqrt(np.maximum(var, 0.0))
 
 
+def _frequency_bounds(prob, fn, step):
+    """Start and bounds of ``log fn``: ``+-step`` around it, capped at the problem's resolved band
+    (``prob.frequency_bounds``; uncapped for a problem without one)."""
+    bounds = getattr(prob, "frequency_bounds", None)
+    if bounds is not None:
+        return bounds(np.asarray(fn, dtype=float), step)
+    lf = np.log(np.asarray(fn, dtype=float))
+    return lf, lf - step, lf + step
+
+
 def free_residue_ml(prob, fn, zeta, max_damping, *, max_iter=60):
     """Maximum likelihood of rounded displacement: Levenberg-Marquardt on all parameters.
 
@@ -200,9 +210,10 @@ def free_residue_ml(prob, fn, zeta, max_damping, *, max_iter=60):
     def design(th_):
         return prob.full_design(np.exp(th_[:n_m]), np.exp(th_[n_m:]))[0]
 
-    th = np.concatenate([np.log(fn), np.log(zeta)])
-    lo = np.concatenate([np.log(fn) - 0.2, np.full(n_m, np.log(MIN_DAMPING))])
-    hi = np.concatenate([np.log(fn) + 0.2, np.full(n_m, np.log(max_damping))])
+    lf, lf_lo, lf_hi = _frequency_bounds(prob, fn, 0.2)
+    th = np.concatenate([lf, np.log(zeta)])
+    lo = np.concatenate([lf_lo, np.full(n_m, np.log(MIN_DAMPING))])
+    hi = np.concatenate([lf_hi, np.full(n_m, np.log(max_damping))])
     x = design(th)
     scale = np.linalg.norm(x, axis=0)
     scale[scale == 0] = 1.0
@@ -307,9 +318,10 @@ def modal_form_ml(prob, fn, zeta, phi, max_damping, *, max_iter=60):
         z = np.einsum("mni,mi->mn", forced, phi_)  # (n_m, N)
         return phi_.T @ z + beta_ @ own_s_.T, z
 
-    th = np.concatenate([np.log(fn), np.log(np.clip(zeta, MIN_DAMPING * 1.01, max_damping * 0.99))])
-    lo = np.concatenate([np.log(fn) - 0.2, np.full(n_m, np.log(MIN_DAMPING))])
-    hi = np.concatenate([np.log(fn) + 0.2, np.full(n_m, np.log(max_damping))])
+    lf, lf_lo, lf_hi = _frequency_bounds(prob, fn, 0.2)
+    th = np.concatenate([lf, np.log(np.clip(zeta, MIN_DAMPING * 1.01, max_damping * 0.99))])
+    lo = np.concatenate([lf_lo, np.full(n_m, np.log(MIN_DAMPING))])
+    hi = np.concatenate([lf_hi, np.full(n_m, np.log(max_damping))])
     phi = np.array(phi, dtype=float).reshape(n_m, n_in)
     forced, own = columns(th)
     own_scale = np.linalg.norm(own, axis=0)

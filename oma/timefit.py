@@ -57,9 +57,30 @@ from .modal import ModalModel
 from .quantised import MIN_DAMPING, free_residue_ml, modal_form_ml
 from .signals import PreparedSignals
 from ._timefit_model import _Problem, _prepare, modal_response  # noqa: F401 (modal_response: re-exported)
-from ._timefit_result import NoModeFound, TimeFit, _ls_block_sandwich, _misfit, _time_fit_from_rank_one
+from ._timefit_result import (NoModeFound, TimeFit, _band_edges, _full_residual, _ls_block_sandwich, _misfit,
+                              _time_fit_from_rank_one)
 
-__all__ = ["TimeFit", "fit_time_domain", "NoModeFound"]
+__all__ = ["TimeFit", "fit_time_domain", "NoModeFound", "RESOLVED_BAND_FRACTION", "MIN_CYCLES", "resolved_band_hz"]
+
+
+#: Highest natural frequency a record resolves, as a fraction of its sample rate. Records are
+#: low-pass filtered before sampling: robomill's simulator by a zero-phase 8th-order Butterworth at
+#: 0.4 fs, flat to 1 % up to 0.3 fs (:mod:`stability.simulate`), and the anti-alias filter of a
+#: data-acquisition system also starts to roll off between 0.3 and 0.45 fs. Above 0.3 fs the
+#: recorded response is shaped by that filter (and folded), not by the structure, so no mode is
+#: placed there; a mode pinned at this limit stands for response from modes above it.
+RESOLVED_BAND_FRACTION = 0.3
+#: Fewest cycles of a mode in the (longest) record for the fit to tell it from a trend and a free
+#: response: the bottom of the band the records resolve is ``MIN_CYCLES / duration``, and not
+#: below :data:`MIN_SCAN_HZ`.
+MIN_CYCLES = 4.0
+MIN_SCAN_HZ = 0.5
+
+
+def resolved_band_hz(sample_rate_hz: float) -> float:
+    """Highest natural frequency, Hz, that a record sampled at ``sample_rate_hz`` resolves
+    (:data:`RESOLVED_BAND_FRACTION` of it)."""
+    return RESOLVED_BAND_FRACTION * float(sample_rate_hz)
 
 
 def _bic(rss, n, p):
@@ -140,9 +161,11 @@ def _directional_proposals(prob, pred, grid, zeta0):
 
 def _nls(prob, fn, zeta, max_damping, *, rough=False):
     n = fn.size
-    th0 = np.concatenate([np.log(fn), np.log(np.clip(zeta, MIN_DAMPING * 1.01, max_damping * 0.99))])
-    lo = np.concatenate([np.log(fn) - 0.3, np.full(n, np.log(MIN_DAMPING))])
-    hi = np.concatenate([np.log(fn) + 0.3, np.full(n, np.log(max_damping))])
+    # each refinement may move a frequency by +-0.3 in log, never out of the band the records resolve
+    lf, lf_lo, lf_hi = prob.frequency_bounds(fn, 0.3)
+    th0 = np.concatenate([lf, np.log(np.clip(zeta, MIN_DAMPING * 1.01, max_damping * 0.99))])
+    lo = np.concatenate([lf_lo, np.full(n, np.log(MIN_DAMPING))])
+    hi = np.concatenate([lf_hi, np.full(n, np.log(max_damping))])
     sol = optimize.least_squares(
         lambda th: prob.solve(np.exp(th[:n]), np.exp(th[n:])), th0, bounds=(lo, hi),
         x_scale=np.concatenate([np.full(n, 0.005), np.full(n, 0.05)]),
@@ -169,7 +192,9 @@ def fit_time_domain(
     scan_damping: float = 0.05,
     scan_spacing: float = 0.04,
     max_damping: float = 0.3,
+    max_frequency_hz: float | None = None,
     force_noise_variance_N2=None,
+    keep_samples=None,
     source: dict | None = None,
 ) -> TimeFit:
     """Fit a modal model to force and displacement records in the time domain.
@@ -214,6 +239,15 @@ def fit_time_domain(
         Variance of the measured force's own error per sample (sensor noise and rounding), N^2,
         one value or one per record. The model's response to it is the smallest error scale the
         quantised-output likelihood may use (:func:`oma.quantised.input_noise_scale`).
+    max_frequency_hz : float, optional
+        Highest natural frequency fitted, Hz; :func:`resolved_band_hz` by default. (The lowest is
+        :data:`MIN_CYCLES` cycles in the longest record.) A mode the fit pins at either end stands
+        for response the band's modes cannot follow: kept in the fit, left out of the model
+        (``TimeFit.above_band_hz``, ``below_band_hz``).
+    keep_samples : sequence of (ndarray of bool or None), optional
+        Per record, the samples compared with the model (True); the measured force still drives
+        the model through those left out (spikes, edge artefacts: :mod:`oma._timefit_artefacts`).
+        All by default.
     source : dict, optional
         Provenance for the model.
 
@@ -241,13 +275,18 @@ def fit_time_domain(
     kinds = {s.motion_quantity if s.motion is not None else "displacement" for s in sigs}
     derivative = {"velocity": 1, "acceleration": 2}.get(kinds.pop(), 0) if len(kinds) == 1 else 0
     residual = residual and derivative == 0  # a residual compliance's derivative needs dp/dt: not fitted
-    recs = _prepare(sigs, harm, inputs, outputs, derivative)
+    recs = _prepare(sigs, harm, inputs, outputs, derivative, keep=keep_samples)
     noise = np.broadcast_to(np.asarray(force_noise_variance_N2 if force_noise_variance_N2 is not None else 0.0,
                                        dtype=float), (len(recs),))
     for rec, v in zip(recs, noise):
         rec["force_noise"] = float(v)
-    prob = _Problem(recs, residual=residual)
-    n_total = sum(r["y"].shape[1] for r in recs) * outputs.size
+    f_max = resolved_band_hz(recs[0]["fs"]) if max_frequency_hz is None else float(max_frequency_hz)
+    # a mode needs a few cycles in the records to be told from a trend and a free response: at
+    # least MIN_CYCLES in the longest (the records share their modes)
+    f_min = max(MIN_CYCLES / max(r["t"][-1] for r in recs), MIN_SCAN_HZ)
+    prob = _Problem(recs, residual=residual, band_hz=(f_min, f_max))
+    used = np.concatenate([np.ones(r["y"].shape[1], dtype=bool) if r["w"] is None else r["w"] > 0 for r in recs])
+    n_total = int(used.sum()) * outputs.size
 
     quantised = quantisation and all(rec["step"] for rec in recs)
     rank_one = modal_form and set(inputs.tolist()) == set(outputs.tolist())
@@ -312,9 +351,7 @@ def fit_time_domain(
         cur = evaluate(np.zeros(0), np.zeros(0))
     else:
         cur = evaluate(np.array(initial.natural_frequency_hz, dtype=float), np.array(initial.damping_ratio, dtype=float))
-    dur = min(r["t"][-1] for r in recs)
-    # a mode needs a few cycles in the record to be told from a trend: at least 4
-    grid = np.exp(np.arange(np.log(max(4.0 / dur, 0.5)), np.log(0.3 * prob.fs), scan_spacing))
+    grid = np.exp(np.arange(np.log(f_min), np.log(f_max), scan_spacing))
     if search:
         # greedy forward selection: propose by a least-squares sweep, accept by the likelihood
         for _ in range(max(max_modes - cur["fn"].size, 0)):
@@ -399,7 +436,8 @@ def fit_time_domain(
         raise NoModeFound("the time-domain fit found no mode")
     converged, message = cur["ok"], cur["message"]
     if cur.get("r1") is not None:
-        return _time_fit_from_rank_one(cur["r1"], recs, inputs, outputs, dropped, split_hz, source, message)
+        return _time_fit_from_rank_one(cur["r1"], recs, inputs, outputs, dropped, split_hz, source, message,
+                                       band_hz=(f_min, f_max))
     sigma_v = np.full(3, np.nan)
     beta = cur["beta"]
     if quantised:
@@ -410,10 +448,10 @@ def fit_time_domain(
         beta = lstsq_normal(xd, y_all.T).T
     pred = beta @ xd.T
     nuis_part = beta[:, nuis_cols] @ xd[:, nuis_cols].T
-    rms, ferr = _misfit(y_all, pred, nuis_part, recs, outputs, quantised)
+    rms, ferr = _misfit(y_all[:, used], pred[:, used], nuis_part[:, used], recs, outputs, quantised)
     a, res_c = prob.unpack_residues(list(beta), fn.size)
     pole_se, n_blocks = (np.full(2 * fn.size, np.nan), 0) if quantised else \
-        _ls_block_sandwich(prob, fn, zeta, beta, xd, y_all - pred)
+        _ls_block_sandwich(prob, fn, zeta, beta, xd, y_all - pred, n_used=int(used.sum()))
 
     freqs, zetas, ks, dirs, keep = [], [], [], [], []
     measured = np.zeros((3, 3), dtype=bool)
@@ -438,6 +476,12 @@ def fit_time_domain(
     visible = np.any(u2 >= 0.01 * np.max(u2, axis=0, keepdims=True), axis=1)
     for j in np.flatnonzero(~visible):
         dropped.append(float(freqs[j]))
+    # a mode pinned at an end of the resolved band stands for response the band's modes cannot
+    # follow: kept in the fit, left out of the model (TimeFit.above_band_hz, below_band_hz)
+    above, below, edge = _band_edges(np.asarray(freqs), visible, (f_min, f_max))
+    visible = visible & ~edge
+    if not np.any(visible):
+        raise NoModeFound("the time-domain fit left no mode inside the band the records resolve")
     freqs, zetas, ks = [np.asarray(v)[visible] for v in (freqs, zetas, ks)]
     dirs, keep = np.asarray(dirs)[visible], np.asarray(keep)[visible]
     res_sym = 0.5 * (res_c + res_c.T) if residual else np.zeros((3, 3))
@@ -451,7 +495,8 @@ def fit_time_domain(
     return TimeFit(
         model=model, residues=a[pole], residual_rms_m=rms, fit_error=ferr,
         noise_scale_m=sigma_v, quantised=bool(quantised),
-        dropped_modes_hz=tuple(dropped), split_modes_hz=tuple(split_hz), success=bool(converged),
+        dropped_modes_hz=tuple(dropped), split_modes_hz=tuple(split_hz), above_band_hz=above,
+        below_band_hz=below, band_hz=(f_min, f_max), success=bool(converged),
         message=message, frequency_se_hz=fn[pole] * pole_se[pole], damping_se=zeta[pole] * pole_se[fn.size + pole],
-        n_blocks=n_blocks,
+        n_blocks=n_blocks, residual=_full_residual(y_all - pred, outputs),
     )

@@ -63,19 +63,50 @@ def segment_correlations(y, start: int, stop: int, max_lag: int) -> np.ndarray:
     lags reach past the segment's end, so segments of any length add up to the correlation of the
     whole record (with the weights ``n_k``) and none needs to be long compared with the lags.
 
+    Lags that reach past the end of ``y`` from every sample of the segment get zero (no products).
+
     Returns
     -------
     ndarray, shape (max_lag + 1, n_channels, n_channels)
+
+    Raises
+    ------
+    RecordError
+        ``y`` spans fewer than :data:`MIN_LAG_MULTIPLE` times ``max_lag`` samples: a record too short
+        for the correlations SSI needs (their longest lags would rest on a handful of products).
     """
     y = np.asarray(y, dtype=float)
+    _check_record_length(y.shape[1], max_lag)
     seg = y[:, start:stop]
     ext = y[:, start:min(stop + max_lag, y.shape[1])]
     n_fft = int(2 ** np.ceil(np.log2(seg.shape[1] + ext.shape[1])))
     a = np.fft.rfft(ext, n=n_fft, axis=-1)
     b = np.fft.rfft(seg, n=n_fft, axis=-1)
     cross = np.fft.irfft(a[:, None, :] * np.conj(b[None, :, :]), n=n_fft, axis=-1)[..., : max_lag + 1]
+    if cross.shape[-1] < max_lag + 1:  # a short segment at the record's end: its longest lags have no products
+        cross = np.concatenate([cross, np.zeros(cross.shape[:-1] + (max_lag + 1 - cross.shape[-1],))], axis=-1)
     count = np.minimum(seg.shape[1], ext.shape[1] - np.arange(max_lag + 1))
     return np.moveaxis(cross, -1, 0) / np.maximum(count, 1)[:, None, None]
+
+
+#: A record must span at least this many times the longest correlation lag: the longest lag is
+#: then still averaged over three times its own length (a 1.1 s cut meets it for modes down to
+#: 4 Hz; 0.5-0.7 s cuts found no mode, or untrusted ones, before it was enforced).
+MIN_LAG_MULTIPLE = 4
+
+
+def _check_record_length(n_samples: int, max_lag: int) -> None:
+    """Raise :class:`~oma.errors.RecordError` for a record too short for lags up to ``max_lag``."""
+    need = MIN_LAG_MULTIPLE * max_lag
+    if n_samples < need:
+        from ..errors import RecordError
+
+        raise RecordError(
+            None, "cut.window_s",
+            f"a cut window at least {need / n_samples:.2f} times as long as this one (output-only "
+            f"identification correlates the response over lags up to {max_lag} samples at its analysis "
+            f"rate, and a record must span {MIN_LAG_MULTIPLE} times the longest lag)",
+            f"{n_samples} samples at that rate (record too short)")
 
 
 def mac(a, b) -> np.ndarray:
