@@ -223,3 +223,22 @@ def test_output_only_on_a_record_too_short_is_a_record_error():
     with pytest.raises(RecordError, match=r"cut\.window_s: expected a cut window at least 1\.92 times as long"
                                           r".*record too short"):
         identify_output_only([rec])
+
+
+def test_output_only_names_the_short_record_and_checks_the_pose(tmp_path):
+    """--output-only: the record too short is named with its window in seconds (the analysis sees
+    signals, not files), and records of two poses are refused as for the force-based method."""
+    from dataclasses import replace as _replace
+
+    from oma.output_only.identify import identify_output_only
+    from oma.record_io import read_record, write_record
+
+    write_record(synthetic_record(duration_s=0.5, output="acceleration", rng=3), tmp_path / "short")
+    short = read_record(tmp_path / "short")
+    with pytest.raises(RecordError, match=r"short.*cut\.window_s: .*found 0\.5 s of cut window \(record too short\)"):
+        identify_output_only([short])
+    rec = _replace(synthetic_record(duration_s=2.0, output="acceleration", rng=4),
+                   joints_deg=np.array([0.0, -60.0, 100.0, 0.0, 50.0, 0.0]))
+    moved = _replace(rec, joints_deg=rec.joints_deg + np.array([0, 5.0, 0, 0, 0, 0]))
+    with pytest.raises(RecordError, match=r"robot\.joints_deg: expected the pose of .*joint 2 differs by 5\.0 deg"):
+        identify_output_only([rec, moved])

@@ -16,6 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._identify_checks import check_same_pose
 from ..errors import RecordError
 from ..modal import ModalModel
 from ..record import Record
@@ -159,6 +160,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     records = list(records)
     if not records:
         raise ValueError("identify needs at least one record")
+    check_same_pose(records)  # cli.md: records of one pose
     fs = float(records[0].sample_rate_hz)
     quantity = None
     signals, slices = [], []
@@ -183,9 +185,17 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     for r, v in zip(records, rpm):
         if v is None or not v > 0:
             warnings.append(f"{r.name or 'record'}: no spindle speed; milling harmonics not removed")
-    modes = output_only_modes(signals, fs, rpm, teeth, band_hz=band_hz, n_segments=n_segments, level=level,
-                              refine_harmonics=refine_harmonics,
-                              **{"derivative": MOTION_QUANTITIES.index(quantity), **mode_options})
+    try:
+        modes = output_only_modes(signals, fs, rpm, teeth, band_hz=band_hz, n_segments=n_segments, level=level,
+                                  refine_harmonics=refine_harmonics,
+                                  **{"derivative": MOTION_QUANTITIES.index(quantity), **mode_options})
+    except RecordError as exc:
+        if exc.file is not None:
+            raise
+        # the analysis knows signals, not files: the shortest record is the one too short
+        short = min(range(len(records)), key=lambda i: signals[i].shape[1])
+        raise RecordError(records[short].path, exc.field, exc.expected,
+                          f"{signals[short].shape[1] / fs:.3g} s of cut window (record too short)") from None
     warnings += list(modes.warnings)
     if modes.rejected_hz.size:
         warnings.append("stable poles at milling lines taken for harmonics, not modes: "
