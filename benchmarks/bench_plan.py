@@ -6,7 +6,8 @@ Run from the repository root::
     MPLBACKEND=Agg .venv/bin/python benchmarks/bench_plan.py --sdm-example  # + the example by SDM
 
 Cases (each: plan time, removal rate, active constraints, and the exhaustive grid search of
-tests/problems.py over the same constraints, with its time and the relative difference)
+tests/problems.py over the same constraints, the surface error on the whole finished wall as the
+plan bounds it (formats.md), with its time and the relative difference)
 
 1. the bundled example (examples/kr500_acetal: acetal, 25.4 mm 2-flute 30 deg helix, ae 6 mm,
    robot and tool modes), ZOA, 500-24000 rpm;

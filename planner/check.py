@@ -17,9 +17,10 @@ For every point of a :class:`~planner.toolpath.Toolpath` (``robomill check``, cl
    spindle speed**: the speed closest to the planned one, inside ``limits.spindle_rpm`` (else within
    half to twice the planned speed), at which the planned depth passes that test.
 4. **forced vibration** of the stable cut (Schmitz & Mann, IJMTM 46, 2006; :mod:`stability.forced`):
-   surface location error at the tool tip, largest resultant force in the cut plane, mean cutting
-   power and mean cutting torque over a revolution; ``surface_error``, ``force``, ``power`` and
-   ``torque`` violations against ``limits`` (the torque and power limits bound the MEAN over a
+   surface location error at the tool tip and its largest magnitude on the whole finished wall
+   (formats.md bounds the wall, not the tip alone), largest resultant force in the cut plane, mean
+   cutting power and mean cutting torque over a revolution; ``surface_error`` (on the wall),
+   ``force``, ``power`` and ``torque`` violations against ``limits`` (the torque and power limits bound the MEAN over a
    revolution, formats.md; ``torque`` is robomill's extension of cli.md's kinds). They are
    evaluated at every point, also where the cut chatters (where they describe the forced part only).
 
@@ -109,6 +110,11 @@ class ToolpathCheck:
         Frequency of the limiting lobe, Hz (NaN where none).
     surface_location_error_m : ndarray, shape (n_points,)
         Forced-vibration surface location error at the tool tip, m (positive: material left on).
+    wall_surface_error_m : ndarray, shape (n_points,)
+        Largest ``|SLE|`` on the whole finished wall (heights 0 to the depth), m: what
+        ``limits.surface_location_error_m`` bounds (formats.md); ``>= |surface_location_error_m|``.
+    surface_error_height_m : ndarray, shape (n_points,)
+        Height above the tool tip at which that largest ``|SLE|`` is, m.
     peak_force_N : ndarray, shape (n_points,)
         Largest resultant force in the cut plane over a revolution, N.
     power_W : ndarray, shape (n_points,)
@@ -128,8 +134,9 @@ class ToolpathCheck:
         target from the nearest reachable one is not known: value 1, limit 0), ``joint_limit``
         (the joint furthest outside its range: how far, deg, limit 0), ``singularity`` (the
         singularity measure and its threshold). ``chatter``: planned depth and allowed depth (margin x limit), m, plus
-        ``depth_limit_m`` and ``nearest_stable_rpm``; ``surface_error``: ``|SLE|`` and the allowed
-        value, m; ``force``: N; ``power``: W; ``torque``: mean torque, N m; ``pose_out_of_range``: distance to the identified span
+        ``depth_limit_m`` and ``nearest_stable_rpm``; ``surface_error``: the largest ``|SLE|`` on
+        the finished wall and the allowed value, m, plus ``height_m`` (where on the wall, above
+        the tip); ``force``: N; ``power``: W; ``torque``: mean torque, N m; ``pose_out_of_range``: distance to the identified span
         and the tolerance exceeded (along the span or across it), degrees, plus ``beyond_range``.
     limits : Limits
         The limits checked against.
@@ -157,6 +164,8 @@ class ToolpathCheck:
     stability_margin: np.ndarray
     chatter_frequency_hz: np.ndarray
     surface_location_error_m: np.ndarray
+    wall_surface_error_m: np.ndarray
+    surface_error_height_m: np.ndarray
     peak_force_N: np.ndarray
     power_W: np.ndarray
     mean_torque_N_m: np.ndarray
@@ -213,8 +222,8 @@ class ToolpathCheck:
         }
         if per_point:
             for name in ("depth_limit_m", "stability_margin", "chatter_frequency_hz", "surface_location_error_m",
-                         "peak_force_N", "power_W", "mean_torque_N_m", "nearest_stable_rpm", "spindle_rpm",
-                         "axial_depth_m"):
+                         "wall_surface_error_m", "surface_error_height_m", "peak_force_N", "power_W",
+                         "mean_torque_N_m", "nearest_stable_rpm", "spindle_rpm", "axial_depth_m"):
                 out[name] = [_json_float(x) for x in getattr(self, name)]
             out["in_span"] = [bool(x) for x in self.in_span]
             if self.joints_deg is not None:
@@ -359,7 +368,8 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
     limits : Limits, optional
         Default ``toolpath.limits``. Used: ``stability_margin`` (allowed fraction of the limit
         depth), ``spindle_rpm`` (range of the nearest-stable-speed search), ``max_force_N``,
-        ``spindle_power_W``, ``surface_location_error_m`` (on ``|SLE|``).
+        ``spindle_power_W``, ``surface_location_error_m`` (on the largest ``|SLE|`` on the
+        finished wall).
     progress : bool
         Show a progress bar (tqdm, on standard error).
     pose_resolution_deg : float, optional
@@ -488,9 +498,9 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
     counts["force_shapes"] = int(n_shapes)
     fg_first, fg_id = _groups(pm.index, frame_id, shape_id, rpm)
     counts["forced_groups"] = int(fg_first.size)
-    sle = surface_errors(tool, pm, frames, unit_h, pm.index[fg_first], frame_id[fg_first], feng_id[fg_first],
-                          depth[fg_first], rpm[fg_first], harm[fg_first],
-                          np.where(down[fg_first], 1.0, -1.0))[fg_id]
+    sle, wall, wall_z = (v[fg_id] for v in surface_errors(
+        tool, pm, frames, unit_h, pm.index[fg_first], frame_id[fg_first], feng_id[fg_first], depth[fg_first],
+        rpm[fg_first], harm[fg_first], np.where(down[fg_first], 1.0, -1.0)))
     peak = shape_peak[shape_id]
     mean_torque = shape_torque[shape_id]
     power = mean_torque * _TWO_PI * rpm / 60.0
@@ -498,7 +508,8 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
     # ---- violations
     if "unreachable" in extra:  # no pose: no robot model, no stability or surface error there
         lost = extra["unreachable"][0]
-        depth_limit, chatter_freq, sle = (np.where(lost, np.nan, a) for a in (depth_limit, chatter_freq, sle))
+        depth_limit, chatter_freq, sle, wall, wall_z = (np.where(lost, np.nan, a) for a in
+                                                        (depth_limit, chatter_freq, sle, wall, wall_z))
         chatter = chatter & ~lost
         nearest = np.where(lost, np.nan, nearest)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -508,7 +519,7 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
         found[kind] = mask
     found["chatter"] = chatter
     if limits.surface_location_error_m is not None:
-        found["surface_error"] = np.abs(sle) > limits.surface_location_error_m
+        found["surface_error"] = wall > limits.surface_location_error_m  # on the whole finished wall
     if limits.max_force_N is not None:
         found["force"] = peak > limits.max_force_N
     if limits.spindle_power_W is not None:
@@ -529,8 +540,8 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
                                "limit": float(fraction * depth_limit[i]), "depth_limit_m": float(depth_limit[i]),
                                "nearest_stable_rpm": float(nearest[i])})
         if found["surface_error"][i]:
-            violations.append({"index": i, "kind": "surface_error", "value": float(abs(sle[i])),
-                               "limit": float(limits.surface_location_error_m)})
+            violations.append({"index": i, "kind": "surface_error", "value": float(wall[i]),
+                               "limit": float(limits.surface_location_error_m), "height_m": float(wall_z[i])})
         if found["force"][i]:
             violations.append({"index": i, "kind": "force", "value": float(peak[i]),
                                "limit": float(limits.max_force_N)})
@@ -551,7 +562,8 @@ def check_toolpath(toolpath: Toolpath, models: Sequence[ModalModel] | None = Non
     return ToolpathCheck(
         method=method, positions_m=_ro(toolpath.positions_m), spindle_rpm=_ro(rpm), axial_depth_m=_ro(depth),
         depth_limit_m=_ro(depth_limit), stability_margin=_ro(margin), chatter_frequency_hz=_ro(chatter_freq),
-        surface_location_error_m=_ro(sle), peak_force_N=_ro(peak), power_W=_ro(power), mean_torque_N_m=_ro(mean_torque),
+        surface_location_error_m=_ro(sle), wall_surface_error_m=_ro(wall), surface_error_height_m=_ro(wall_z),
+        peak_force_N=_ro(peak), power_W=_ro(power), mean_torque_N_m=_ro(mean_torque),
         in_span=_ro(pm.in_span, bool),
         nearest_stable_rpm=_ro(nearest), violations=tuple(violations), limits=limits, allowed_fraction=fraction,
         evaluations=counts, notes=tuple(notes), kinds=MODEL_KINDS if robot is None else ROBOT_KINDS,

@@ -298,9 +298,12 @@ def _cmd_plan(args) -> int:
     def human(p):
         if not p["success"]:
             return f"no plan ({result.status}): {result.message}"
+        height = p.get("surface_error_height_m")
+        active = [f"surface_error (at z = {1e3 * height:.2f} mm on the wall)"
+                  if a == "surface_error" and height is not None else a for a in p["active_constraints"]]
         text = (f"{p['spindle_rpm']:.0f} rpm, axial depth {1e3 * p['axial_depth_m']:.2f} mm, feed "
                 f"{1e3 * p['feed_per_tooth_m']:.3f} mm/tooth: MRR {1e6 * p['mrr_m3_s']:.2f} cm^3/s; active: "
-                + (", ".join(p["active_constraints"]) or "none"))
+                + (", ".join(active) or "none"))
         learned_ = p.get("learned") or {}
         check = learned_.get("check")
         if check:

@@ -11,28 +11,15 @@ The problem (robomill issue 5)::
 
 How each function enters the NLP (smooth inside one pocket):
 
-* **Stability** (:mod:`planner.pockets`). The lower envelope of the lobes is smooth between two
-  adjacent lobe crossings (one lobe branch), so the speed range is cut into *pockets* there. ZOA: the exact cusps of
-  :func:`stability.zoa.envelope`, plus crossings it does not mark (two lobes with the same number
-  from different modes: the chatter frequency jumps; bisected); in each pocket the limit is a
-  Chebyshev series whose values are the exact envelope at Chebyshev-Lobatto nodes, the degree
-  doubled (32 ... 128) until the series through half the nodes reproduces the other half to
-  ``cheb_rtol`` (the envelope follows each eigenvalue continuously in frequency, so no lobe is
-  lost where their order swaps). SDM: the local maxima of the sampled diagram, each refined by a
-  golden-section search, a PCHIP through the samples, and local refinement around the best
-  pockets' answers. Pockets narrower than ``min_pocket_rel_width`` of their centre speed (hundreds
-  of tiny lobes at low speed) are merged, and the merged region uses the lower convex hull of the
-  pocket minima, one linear piece per NLP: conservative, and cheap.
-* **Surface location error** (:mod:`planner.cut_model`; Schmitz & Mann, IJMTM 46, 2006), exact
-  and analytic for a modal model: the force of a straight flute per unit depth has closed-form
-  Fourier coefficients ``F_h`` over the engagement window (affine in fz: cutting part times fz plus edge part); a helix delays
-  the slice at height ``z`` by ``kappa z``, so the cut's harmonic is
-  ``F_h (1 - exp(-i h N kappa ap)) / (i h N kappa)``; the receptance of each mode is rational in
-  ``n``. The limit holds on the whole finished wall (formats.md), not only at the tip: the slice
-  at height ``z`` reaches the finishing angle ``kappa z / Omega`` after the tip, so harmonic ``h``
-  of the displacement turns by ``exp(i h N kappa z)`` there (the profile of
-  :func:`stability.forced.forced_response`). Hence ``SLE(z) = fz S_c(n, ap, z) + S_e(n, ap, z)``
-  with no interpolation in ``n``, ``ap`` or ``z`` (the harmonics of
+* **Stability** (:mod:`planner.pockets`): the lower envelope of the lobes is smooth between two
+  adjacent lobe crossings, so the speed range is cut into *pockets* there, each with its limit as
+  a Chebyshev series of the exact ZOA envelope (or a PCHIP through SDM samples, refined around the
+  best pockets' answers); narrow pockets at low speed are merged under the lower convex hull of
+  their minima (conservative, and cheap).
+* **Surface location error** (:mod:`planner.cut_model`, :mod:`planner.wall`; Schmitz & Mann, IJMTM
+  46, 2006): exact and analytic for a modal model, ``SLE(z) = fz S_c(n, ap, z) + S_e(n, ap, z)`` at
+  height ``z`` on the finished wall (the limit holds on the whole wall, formats.md, not only at the
+  tip), with no interpolation in ``n``, ``ap`` or ``z`` (the harmonics of
   :func:`stability.forced.default_harmonics` at the pocket's lowest speed). ``max_z |SLE|`` is a
   semi-infinite constraint; the NLP bounds ``|SLE|`` at a few heights ``z = s ap`` (the fractions
   ``s`` are parameters: those where the start point's profile peaks) and an exchange adds the
@@ -40,21 +27,14 @@ How each function enters the NLP (smooth inside one pocket):
   The surface error is not monotone in depth: with a helix the force harmonics cancel near
   multiples of the axial pitch, so the limit can hold in thin bands of depth only; the start grid
   looks for them.
-* **Peak force** does not depend on speed, and at one depth it is convex in feed (the largest over
-  the angle of ``|F_e + fz F_c|``): the largest feed ``B(ap)`` with the peak within the limit is
-  exact per depth, the smallest over the angles of the root of a quadratic in ``fz``. It is
-  continuous in depth with kinks where the helix lag ``kappa ap`` brings an entry or exit angle
-  onto another (``kappa ap = m pitch`` or ``m pitch +- (exit - entry)``): once every angle of the
-  engagement lies on the flute, the peak stops growing with depth. (The largest depth per feed
-  would jump there, from a finite depth to none, which no smooth function of the feed follows.)
-  The constraint ``ap fz <= q(ap) = ap B(ap)`` uses cubic B-splines of ``q`` (nearly linear in
-  ``ap``), one per smooth piece between the kinks, nodes doubled until the spline reproduces
-  ``B`` at the midpoints to ``_FORCE_RTOL``.
-* **Torque and power** are exact. The limits bound the MEAN torque and power over a revolution
-  (formats.md: a spindle's continuous rating; its inertia smooths the fluctuation within a
-  revolution), and the mean torque is linear in depth (every slice has the same mean) and affine
-  in feed, ``tau = ap (tau_c fz + tau_e)``; power is ``2 pi n / 60`` times it. The peak torque
-  is reported by :func:`stability.lobes.predict_point` but constrains nothing.
+* **Peak force** does not depend on speed; at one depth the largest feed with the peak within the
+  limit is exact (:meth:`planner.cut_model.CutModel.feed_bound`), and the NLP bounds the chip area
+  ``ap fz`` by cubic B-splines of it, one per smooth piece in depth
+  (:meth:`~planner.cut_model.CutModel.force_area`).
+* **Torque and power** are exact (:meth:`~planner.cut_model.CutModel.mean_torque`,
+  :meth:`~planner.cut_model.CutModel.power`). The limits bound the MEAN torque and power over a
+  revolution (formats.md: a spindle's continuous rating); the peak torque is reported by
+  :func:`stability.lobes.predict_point` but constrains nothing.
 
 Every pocket is started from the best point of a grid evaluated with the same functions (a pocket
 can hold several local optima of the surface error) and solved by IPOPT (one ``ca.Opti`` per
@@ -71,7 +51,6 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
-from functools import lru_cache
 from itertools import combinations
 from typing import Literal
 
@@ -80,14 +59,13 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from oma._arrays import readonly as _ro
-from oma.errors import SetupError
 from stability.lobes import OperatingPoint, predict_point
-from stability.oriented import engaged_axial_integral, helix_lag_per_m
 from stability.sdm import as_modal_model
 
 from .cut_model import CutModel
-from .plan_results import CONSTRAINTS, Plan, PlanSettings, PocketResult
+from .plan_results import CONSTRAINTS, Plan, PlanBounds, PlanSettings, PocketResult, plan_bounds
 from .pockets import Pocket, build_pockets, cheb_eval, sampled_pockets, sdm_pockets, zoa_pockets
+from .wall import local_maxima, wall_error, wall_points
 
 __all__ = ["PlanSettings", "PocketResult", "Plan", "plan", "wall_error", "CONSTRAINTS"]
 
@@ -103,240 +81,32 @@ Method = Literal["auto", "zoa", "sdm"]
 TWO_PI = 2.0 * np.pi
 
 
-# ------------------------------------------------------------------- peak force and the wall's SLE
-# Angles per tooth pitch of the peak search (as CutModel.peaks and stability.forced).
-_PEAK_GRID = 4096
-# Relative accuracy of the splines of the peak-force feed bound, checked at their midpoints: far
-# below PlanSettings.recheck_rtol, so that the re-check rarely has to back off.
-_FORCE_RTOL = 1e-5
-# Most nodes of one smooth piece of the force bound (a kink not at a known depth stops there).
-_FORCE_MAX_NODES = 257
 # Heights on the wall (fractions of the depth, NLP parameters) at which |SLE| can be bounded: an
 # NLP per harmonic count and number of heights on this ladder (each height costs as much as the
 # tip's surface error, so the NLP with the fewest heights that serves is taken).
 _WALL_SLOTS = (1, 2, 4, 8)
-# The dense search for the largest |SLE| on the wall: grid points per turn of the highest
-# harmonic over the depth (then zoomed in, :func:`_max_abs`).
-_WALL_POINTS_PER_TURN = 8
 # |SLE| is exceeded at an answer of the NLP when above the limit by this fraction (IPOPT's own
 # tolerance is ~1e-8; the exchange adds a height only for a real excess).
 _WALL_RTOL = 1e-6
-# Complex values per block of the dense evaluations (heights x harmonics): 16 MB.
-_CHUNK = 2**20
 
 
+# The cut's physics moved to CutModel; kept importable from here under their former names.
 def _feed_bound(cm: CutModel, limit_N: float, depths) -> np.ndarray:
-    """Largest feed per tooth, m, with the peak in-plane force within ``limit_N``, per depth (m).
-
-    At one tip angle the force is ``F_e + fz F_c`` (edge plus cutting part, both from
-    :func:`stability.oriented.engaged_axial_integral`), so ``|F|^2 = limit^2`` is a quadratic in
-    ``fz``; the bound is the smallest of its positive roots over the angles of
-    :meth:`CutModel.peaks` (a fine grid plus both sides of every angle where the force can jump).
-    Zero where the edge force alone exceeds the limit at some angle.
-    """
-    pitch = TWO_PI / cm.teeth
-    grid = pitch * np.arange(_PEAK_GRID) / _PEAK_GRID
-    out = np.empty(np.size(depths))
-    for i, a in enumerate(np.atleast_1d(np.asarray(depths, dtype=float))):
-        lag = cm.kappa * a
-        crit = np.mod(np.array([cm.st, cm.ex, cm.st + lag, cm.ex + lag])[:, None] - pitch * np.arange(cm.teeth),
-                      pitch).ravel()
-        phi = np.concatenate([grid, crit - 1e-9 * pitch, crit, crit + 1e-9 * pitch])
-        e = engaged_axial_integral(cm.tool, cm.cut, phi, a)
-        fe, fc = e @ cm.fc_e[:2].T, e @ cm.fc_c[:2].T
-        qa, qb, qc = np.sum(fc * fc, axis=1), 2.0 * np.sum(fe * fc, axis=1), np.sum(fe * fe, axis=1) - limit_N**2
-        if np.any(qc > 0):
-            out[i] = 0.0
-            continue
-        with np.errstate(divide="ignore"):  # -2 c / (b + sqrt(b^2 - 4 a c)): the root, without cancellation
-            out[i] = np.min(-2.0 * qc / (qb + np.sqrt(qb * qb - 4.0 * qa * qc)))
-    return out
-
-
-def _wall_amplitudes(cm: CutModel, n_harm: int, rpm, ap):
-    """Static coefficient (2,), harmonic amplitudes at the tip (2, I, J, H) and the turn per unit
-    height of each harmonic (H,), rad/m, of ``(S_c, S_e)``: rpm (I,), ap (I, J)."""
-    c = cm._sle_coeffs(n_harm)
-    rpm, ap = np.asarray(rpm, dtype=float), np.asarray(ap, dtype=float)
-    rho = c["h"][None, None, :] * (cm.teeth * rpm / 60.0)[:, None, None] / c["fn"][None, :, None]
-    inv_d = 1.0 / (1.0 - rho**2 + 2j * c["zeta"][None, :, None] * rho)  # (I, R, H)
-    acc = c["beta"][:, None, :] + np.einsum("prh,irh->pih", c["alpha"], inv_d)  # (2, I, H)
-    theta = c["theta"]
-    hel = ((1.0 - np.exp(-1j * theta * ap[..., None])) / (1j * theta) if cm.kappa
-           else ap[..., None] + 0j * theta)  # (I, J, H)
-    return c["static"], acc[:, :, None, :] * hel[None], theta
+    """:meth:`CutModel.feed_bound`."""
+    return cm.feed_bound(limit_N, depths)
 
 
 def _wall_parts(cm: CutModel, n_harm: int, rpm, ap, frac):
-    """``(S_c, S_e)`` of the surface error at heights ``z = frac * ap`` on the finished wall, m
-    (``SLE(z) = fz S_c + S_e``; ``S_c`` per unit feed); ``frac = 0`` is the tip, as
-    :meth:`CutModel.sle_parts`.
-
-    The slice at height ``z`` reaches the finishing angle ``kappa z / Omega`` after the tip, so
-    harmonic ``h`` of the tool's displacement turns by ``exp(i h N kappa z)`` there (the profile
-    of :func:`stability.forced.forced_response`); the sum over the harmonics by Horner's rule.
-
-    Parameters
-    ----------
-    rpm : ndarray, shape (I,)
-    ap : ndarray, shape (I, J)
-        Depths at each speed, m.
-    frac : ndarray, shape (Z,)
-        Heights as fractions of the depth, in [0, 1].
-
-    Returns
-    -------
-    S_c, S_e : ndarray, shape (I, J, Z)
-    """
-    static, amp, theta = _wall_amplitudes(cm, n_harm, rpm, ap)
-    ap = np.asarray(ap, dtype=float)
-    turn = np.exp(1j * theta[0] * np.asarray(frac, dtype=float) * ap[..., None])  # (I, J, Z): harmonic 1
-    total = np.zeros((2,) + turn.shape, dtype=complex)
-    amp = np.ascontiguousarray(np.moveaxis(amp, -1, 0))[..., None]  # (H, 2, I, J, 1)
-    for h in range(n_harm - 1, -1, -1):  # sum_h amp_h turn^h, in place
-        total += amp[h]
-        total *= turn
-    out = static[:, None, None, None] * ap[None, ..., None] + 2.0 * total.real
-    return out[0], out[1]
-
-
-@lru_cache(maxsize=None)
-def _harmonic_turns(n_harm: int) -> ca.Function:
-    """``phi -> (cos(h phi), sin(h phi))`` for h = 1..n_harm (CasADi) by the Chebyshev recurrence
-    ``c_{h+1} = 2 cos(phi) c_h - c_{h-1}``: one sine and one cosine, not ``n_harm`` of each
-    (rounding grows like ``h`` ulps)."""
-    phi = ca.SX.sym("phi")
-    c1, s1 = ca.cos(phi), ca.sin(phi)
-    cos_h, sin_h = [c1], [s1]
-    prev_c, prev_s = ca.SX(1.0), ca.SX(0.0)
-    for _ in range(n_harm - 1):
-        nc, ns = 2.0 * c1 * cos_h[-1] - prev_c, 2.0 * c1 * sin_h[-1] - prev_s
-        prev_c, prev_s = cos_h[-1], sin_h[-1]
-        cos_h.append(nc)
-        sin_h.append(ns)
-    return ca.Function(f"turns_{n_harm}", [phi], [ca.vertcat(*cos_h), ca.vertcat(*sin_h)])
+    """:meth:`CutModel.wall_parts`."""
+    return cm.wall_parts(rpm, ap, frac, n_harm)
 
 
 def _wall_function(cm: CutModel, n_harm: int, slots: int) -> ca.Function:
-    """``(rpm, ap, frac[slots]) -> (S_c, S_e)`` at heights ``frac * ap`` (CasADi, the sums of
-    :func:`_wall_parts`), m."""
-    c = cm._sle_coeffs(n_harm)
-    rpm, ap, frac = ca.SX.sym("rpm"), ca.SX.sym("ap"), ca.SX.sym("frac", slots)
-    f_tooth = cm.teeth * rpm / 60.0
-    theta_1 = float(c["theta"][0]) if n_harm else 0.0
-    if cm.kappa:  # hel_h = (1 - exp(-i theta_h ap)) / (i theta_h)
-        cos_a, sin_a = _harmonic_turns(n_harm)(theta_1 * ap)
-        th = ca.DM(c["theta"])
-        hel_re, hel_im = sin_a / th, -(1.0 - cos_a) / th
-    else:
-        hel_re, hel_im = ca.DM.ones(n_harm) * ap, ca.DM.zeros(n_harm) * ap
-    inv_d = []  # 1 / D_r(h f_T) of each mode, shared by both parts
-    for q in range(c["fn"].size):
-        rho = ca.DM(c["h"] / c["fn"][q]) * f_tooth
-        a_re, a_im = 1.0 - rho**2, 2.0 * c["zeta"][q] * rho
-        den = a_re**2 + a_im**2
-        inv_d.append((a_re / den, -a_im / den))
-    amp = []
-    for p in range(2):
-        acc_re, acc_im = ca.DM(c["beta"][p].real) + 0 * rpm, ca.DM(c["beta"][p].imag) + 0 * rpm
-        for q, (g_re, g_im) in enumerate(inv_d):
-            al_re, al_im = ca.DM(c["alpha"][p, q].real), ca.DM(c["alpha"][p, q].imag)
-            acc_re = acc_re + al_re * g_re - al_im * g_im
-            acc_im = acc_im + al_re * g_im + al_im * g_re
-        amp.append((acc_re * hel_re - acc_im * hel_im, acc_re * hel_im + acc_im * hel_re))
-    rows = ([], [])
-    for k in range(slots):
-        cos_z, sin_z = _harmonic_turns(n_harm)(theta_1 * frac[k] * ap)
-        for p, (amp_re, amp_im) in enumerate(amp):
-            rows[p].append(c["static"][p] * ap + 2.0 * ca.sum1(amp_re * cos_z - amp_im * sin_z))
-    return ca.Function(f"wall_{n_harm}_{slots}", [rpm, ap, frac], [ca.vertcat(*r) for r in rows],
-                       ["rpm", "ap", "frac"], ["S_c", "S_e"])
-
-
-def _peaks(v) -> np.ndarray:
-    """Indices of the local maxima of ``v`` (the ends included), largest first."""
-    pad = np.concatenate([[-np.inf], v, [-np.inf]])
-    peaks = np.flatnonzero((pad[1:-1] >= pad[:-2]) & (pad[1:-1] >= pad[2:]))
-    return peaks[np.argsort(v[peaks])[::-1]]
-
-
-def _max_abs(fn, lo: float, hi: float, n: int, *, keep: int = 3, zooms: int = 3) -> tuple[float, float]:
-    """Largest ``|fn(z)|`` over ``[lo, hi]`` and where (``fn`` vectorised): a grid of ``n`` points,
-    then ``zooms`` grids of 33 points between the neighbours of each of the ``keep`` best local
-    maxima (each zoom shrinks the bracket 16 times)."""
-    z = np.linspace(lo, hi, max(int(n), 3))
-    v = np.abs(fn(z))
-    best_v, best_z = float(v.max()), float(z[np.argmax(v)])
-    for k in _peaks(v)[:keep]:
-        a, b = z[max(k - 1, 0)], z[min(k + 1, z.size - 1)]
-        for _ in range(zooms):
-            zz = np.linspace(a, b, 33)
-            vv = np.abs(fn(zz))
-            j = int(np.argmax(vv))
-            if vv[j] > best_v:
-                best_v, best_z = float(vv[j]), float(zz[j])
-            a, b = zz[max(j - 1, 0)], zz[min(j + 1, zz.size - 1)]
-    return best_v, best_z
-
-
-def _wall_points(n_harm: int, theta_1: float, ap: float) -> int:
-    """Grid points for the dense search of |SLE| on a wall of height ``ap``:
-    ``_WALL_POINTS_PER_TURN`` per turn of the highest harmonic over the depth."""
-    turns = n_harm * theta_1 * ap / TWO_PI
-    return int(np.clip(np.ceil(_WALL_POINTS_PER_TURN * turns) + 1, 17, 8193))
-
-
-def wall_error(point: OperatingPoint, tool, cut) -> tuple[float, float]:
-    """Largest ``|SLE|`` on the finished wall of a predicted cut, m, and its height above the
-    tip, m: the steady displacement of :func:`stability.lobes.predict_point`'s forced response
-    along the wall's normal at the instant each height is finished (the instant of the tip plus
-    ``kappa z / Omega``; ``surface_location_error_profile`` samples the same function), on a grid
-    that resolves every harmonic summed, zoomed in on its peaks."""
-    fr = point.forced
-    kappa = helix_lag_per_m(tool)
-    omega = TWO_PI * fr.spindle_rpm / 60.0
-    sign = 1.0 if cut.milling == "down" else -1.0
-    normal = np.asarray(cut.normal_direction, dtype=float)
-
-    def sle(z):
-        t = fr.finishing_time_s + kappa * np.asarray(z) / omega
-        step = max(1, _CHUNK // (fr.harmonics + 1))  # displacement_at holds (3, len(t), harmonics)
-        return sign * np.concatenate([normal @ fr.displacement_at(t[i:i + step]) for i in range(0, t.size, step)])
-
-    n = _wall_points(fr.harmonics, tool.teeth * kappa, fr.axial_depth_m)
-    return _max_abs(sle, 0.0, fr.axial_depth_m, n)
+    """:meth:`CutModel.wall_function`."""
+    return cm.wall_function(n_harm, slots)
 
 
 # ------------------------------------------------------------------------------------ the problem
-@dataclass(frozen=True)
-class _Bounds:
-    rpm: tuple[float, float]
-    ap: tuple[float, float]
-    fz: tuple[float, float]
-    margin: float
-    sle: float | None
-    force: float | None
-    torque: float | None
-    power: float | None
-
-
-def _bounds(setup) -> _Bounds:
-    lim = setup.limits
-    if setup.material.cutting_coefficients is None:
-        raise SetupError(None, "material.cutting_coefficients", "cutting coefficients to plan with", "none")
-    if lim.spindle_rpm is None:
-        raise SetupError(None, "limits.spindle_rpm", "a [low, high] speed range to plan in", "none")
-    if lim.axial_depth_m is None:
-        raise SetupError(None, "limits.axial_depth_m", "a [low, high] depth range to plan in", "none")
-    fz = lim.feed_per_tooth_m or (setup.cut.feed_per_tooth_m,) * 2
-    rpm = tuple(float(v) for v in lim.spindle_rpm)
-    if not rpm[0] < rpm[1]:
-        raise SetupError(None, "limits.spindle_rpm", "low < high", f"{list(rpm)}")
-    return _Bounds(rpm, tuple(float(v) for v in lim.axial_depth_m), tuple(float(v) for v in fz),
-                   float(lim.stability_margin or 1.0), lim.surface_location_error_m, lim.max_force_N,
-                   lim.spindle_torque_N_m, lim.spindle_power_W)
-
-
 @dataclass(frozen=True)
 class _NLP:
     opti: ca.Opti
@@ -362,92 +132,38 @@ class _Problem:
 
     def __init__(self, setup, model, settings: PlanSettings):
         self.setup, self.settings = setup, settings
-        self.b = _bounds(setup)
+        self.b: PlanBounds = plan_bounds(setup)
         self.cm = CutModel(model, setup.tool, setup.cut, setup.material.cutting_coefficients)
         self.fixed_feed = self.b.fz[1] <= self.b.fz[0]
         self._nlps: dict[tuple[int, int], _NLP] = {}
-        self.force_area = None if self.b.force is None else self._force_area()
-
-    # ---- peak force -------------------------------------------------------------------------------
-    def _force_area(self) -> ca.Function:
-        """``q(ap) = ap B(ap)``, m^2 (CasADi): the largest chip area ``ap fz`` with the peak force
-        within the limit (:func:`_feed_bound`), cubic B-splines between the kinks of ``B``."""
-        cm, (lo, hi), limit = self.cm, self.b.ap, float(self.b.force)
-        # the splines reach 5 % beyond the depth range: a B-spline is zero outside its grid, and
-        # IPOPT may step past a bound by its bound relaxation (~1e-8)
-        pad = 0.05 * (hi - lo if hi > lo else lo)
-        a0, a1 = max(lo - pad, 0.5 * lo), hi + pad
-        kinks = np.array([])
-        if cm.kappa:
-            pitch, width = TWO_PI / cm.teeth, cm.ex - cm.st
-            m = np.arange(int(cm.kappa * a1 / pitch) + 2)
-            kinks = np.concatenate([m * pitch, m * pitch + width, m * pitch - width]) / cm.kappa
-            kinks = np.unique(kinks[(kinks > a0 * (1 + 1e-6)) & (kinks < a1 * (1 - 1e-6))])
-        edges = np.concatenate([[a0], kinks, [a1]])
-        x = ca.MX.sym("ap")
-        expr, worst = None, 0.0
-        for e0, e1 in zip(edges[::-1][1:], edges[::-1][:-1]):  # from the deepest piece down
-            nodes = np.linspace(e0, e1, self.settings.force_feed_nodes)
-            area = nodes * _feed_bound(cm, limit, nodes)
-            while True:
-                fn = ca.interpolant("force_area", "bspline", [nodes], area)
-                mid = 0.5 * (nodes[1:] + nodes[:-1])
-                want = mid * _feed_bound(cm, limit, mid)
-                got = np.asarray(fn.map(mid.size)(mid[None, :])).ravel()
-                err = float(np.max(np.abs(got - want) / np.maximum(want, mid * self.b.fz[0])))
-                if err <= _FORCE_RTOL or nodes.size >= _FORCE_MAX_NODES:
-                    break
-                nodes, area = (np.insert(v, np.arange(1, v.size), w) for v, w in ((nodes, mid), (area, want)))
-            worst = max(worst, err)
-            expr = fn(x) if expr is None else ca.if_else(x < e1, fn(x), expr)
-        log.info("peak-force bound: %d pieces, spline error %.1e at the midpoints", edges.size - 1, worst)
-        return ca.Function("force_area", [x], [expr])
+        # the largest chip area ap fz with the peak force within the limit, a CasADi spline of ap
+        self.force_area = None if self.b.force is None else self.cm.force_area(
+            float(self.b.force), self.b.ap, nodes=settings.force_feed_nodes, feed_floor_m=self.b.fz[0])
 
     def area(self, ap):
-        """:meth:`_force_area` at depths ``ap`` (NumPy array or CasADi symbol), m^2."""
+        """The largest chip area ``ap fz`` with the peak force within the limit
+        (:meth:`CutModel.force_area`) at depths ``ap`` (NumPy array or CasADi symbol), m^2."""
         if isinstance(ap, (ca.MX, ca.SX)):
             return self.force_area(ap)
         u, inv = np.unique(np.asarray(ap, dtype=float), return_inverse=True)
         return np.asarray(self.force_area.map(u.size)(u[None, :])).ravel()[inv].reshape(np.shape(ap))
 
     # ---- surface error on the wall ----------------------------------------------------------------
-    def wall_profile(self, n_harm: int, x):
-        """The SLE along the wall at ``x = (rpm, ap, fz)``, m, as a function of the height fraction
-        (vectorised), and the number of grid points that resolves it (:func:`_wall_points`)."""
-        rpm, ap, fz = (float(v) for v in x)
-        static, amp, theta = _wall_amplitudes(self.cm, n_harm, [rpm], [[ap]])
-        amp = fz * amp[0, 0, 0] + amp[1, 0, 0]  # (H,)
-        base = (fz * static[0] + static[1]) * ap
-        step = max(1, _CHUNK // n_harm)
-
-        def fn(frac):
-            z = np.atleast_1d(frac) * ap
-            return base + 2.0 * np.concatenate([np.real(np.exp(1j * np.multiply.outer(z[i:i + step], theta)) @ amp)
-                                                for i in range(0, z.size, step)])
-
-        return fn, _wall_points(n_harm, self.cm.teeth * self.cm.kappa, ap)
-
-    def wall_max(self, n_harm: int, x) -> tuple[float, float]:
-        """Largest ``|SLE|`` on the wall at ``x`` (the NLP's model), m, and its height fraction."""
-        fn, n = self.wall_profile(n_harm, x)
-        return _max_abs(fn, 0.0, 1.0, n)
-
     def wall_start(self, n_harm: int, x, factor: float) -> list[float]:
         """Height fractions to bound first: the local maxima of ``|SLE|`` at ``x`` above half the
         limit, largest first (at least the largest)."""
-        fn, n = self.wall_profile(n_harm, x)
-        s = np.linspace(0.0, 1.0, n)
+        fn = self.cm.wall_profile(x, n_harm)
+        s = np.linspace(0.0, 1.0, wall_points(n_harm, self.cm.teeth * self.cm.kappa, float(x[1])))
         v = np.abs(fn(s))
-        peaks = _peaks(v)
+        peaks = local_maxima(v)
         high = [float(s[k]) for k in peaks if v[k] >= 0.5 * factor * self.b.sle]
         return (high or [float(s[peaks[0]])])[: _WALL_SLOTS[-1] // 2]
 
     def seed_fractions(self, pocket: Pocket, n_harm: int, ap_max: float) -> np.ndarray:
         """Height fractions of the start grid: four per turn, over the deepest cut, of the harmonic
         that meets the highest mode along the wall's normal at the pocket's lowest speed."""
-        c = self.cm._sle_coeffs(n_harm)
         f_tooth = self.cm.teeth * pocket.rpm_lo / 60.0
-        h = max(1.0, float(np.max(c["fn"], initial=0.0)) / f_tooth)
+        h = max(1.0, float(np.max(self.cm.wall_modes_hz, initial=0.0)) / f_tooth)
         turns = h * self.cm.teeth * self.cm.kappa * ap_max / TWO_PI
         return np.linspace(0.0, 1.0, int(np.clip(np.ceil(4 * turns) + 1, 5, 33)))
 
@@ -493,7 +209,7 @@ class _Problem:
         worst = None
         if b.sle is not None:
             frac = self.seed_fractions(pocket, n_harm, float(cap.max()))
-            s_c, s_e = _wall_parts(self.cm, n_harm, rpm, ap, frac)  # (I, J, Z)
+            s_c, s_e = self.cm.wall_parts(rpm, ap, frac, n_harm)  # (I, J, Z)
             sle = fz * s_c[..., None] + s_e[..., None]  # (I, J, Z, K)
             big = np.max(np.abs(sle), axis=2)  # (I, J, K)
             tol = 0.999 * factors["surface_error"] * b.sle
@@ -508,7 +224,7 @@ class _Problem:
             xs = [np.concatenate(v) for v in xs]
             worst = big.ravel()
             if xs[0].size:
-                xc, xe = _wall_parts(self.cm, n_harm, xs[0], xs[1][:, None], frac)  # (P, 1, Z)
+                xc, xe = self.cm.wall_parts(xs[0], xs[1][:, None], frac, n_harm)  # (P, 1, Z)
                 worst = np.concatenate([worst, np.max(np.abs(xs[2][:, None] * xc[:, 0] + xe[:, 0]), axis=1)])
                 pts = [np.concatenate([p, v]) for p, v in zip(pts, xs)]
         masks = self.masks(pocket, *pts, factors, sle_worst=worst)
@@ -558,7 +274,7 @@ class _Problem:
         limit = cheb_eval(ca.vertsplit(coef), x_cheb)
         opti.subject_to(xa <= factor["stability"] * b.margin * limit / DEPTH_SCALE)
         if b.sle is not None:
-            s_c, s_e = _wall_function(self.cm, n_harm, slots)(rpm, ap, frac)
+            s_c, s_e = self.cm.wall_function(n_harm, slots)(rpm, ap, frac)
             opti.subject_to(opti.bounded(-1.0, on * (fz * s_c + s_e) / (factor["surface_error"] * b.sle), 1.0))
         if b.force is not None:
             opti.subject_to(xa * xf <= factor["force"] * self.area(ap) / (DEPTH_SCALE * FEED_SCALE))
@@ -579,7 +295,7 @@ class _Problem:
         """Whether ``x`` meets the pocket's constraints (as the NLP sees them, the surface error on
         the whole wall; ``wall``: its largest ``|SLE|`` at ``x`` if known) to ``rtol``."""
         if self.b.sle is not None and wall is None:
-            wall = self.wall_max(n_harm, x)[0]
+            wall = self.cm.wall_max(x, n_harm)[0]
         m = self.masks(pocket, np.array([x[0]]), np.array([x[1] * (1 - rtol)]), np.array([x[2]]),
                        {k: v * (1 + rtol) for k, v in factors.items()}, sle_worst=wall)
         return all(bool(v.all()) for v in m.values())
@@ -626,7 +342,7 @@ class _Problem:
             x, status = self._ipopt(self.nlp(n_harm, slots), pocket, factors, heights, start)
             if self.b.sle is None or not np.all(np.isfinite(x)):
                 break
-            wall, at = self.wall_max(n_harm, np.clip(x, *limits))
+            wall, at = self.cm.wall_max(np.clip(x, *limits), n_harm)
             if wall <= factors["surface_error"] * self.b.sle * (1 + _WALL_RTOL) or len(heights) == _WALL_SLOTS[-1]:
                 break
             heights.append(at)
@@ -812,8 +528,8 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
                     mrr_m3_s=None, active_constraints=(), infeasible_constraint=culprit, point=None, **common)
     x = results[best].solution
     active = _active(prob, point, x)
-    names = [f"surface_error at z = {wall_error(point, tool, cut)[1] * 1e3:.3g} mm" if a == "surface_error" else a
-             for a in active]
+    height = wall_error(point, tool, cut)[1] if "surface_error" in active else None  # where the wall binds
+    names = [f"surface_error at z = {height * 1e3:.3g} mm" if a == "surface_error" else a for a in active]
     msg = (f"{x[0]:.0f} rpm, depth {x[1] * 1e3:.3g} mm, feed {x[2] * 1e3:.3g} mm/tooth: "
            f"{_mrr(setup, x) * 1e6:.4g} cm^3/s; active: {', '.join(names) or 'none'}")
     status = results[best].solver_status
@@ -826,7 +542,8 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
         msg = f"no constraint binds, so this is no optimum; best verified point {msg}"
     return Plan(converged, "optimal" if converged else "not_converged", msg, spindle_rpm=float(x[0]),
                 axial_depth_m=float(x[1]), feed_per_tooth_m=float(x[2]), mrr_m3_s=_mrr(setup, x),
-                active_constraints=active, infeasible_constraint=None, point=point, **common)
+                active_constraints=active, infeasible_constraint=None, point=point,
+                surface_error_height_m=height, **common)
 
 
 def _verify(prob: _Problem, pockets, results, predict, setup, settings: PlanSettings):

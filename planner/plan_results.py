@@ -1,5 +1,6 @@
 """What :func:`planner.optimize.plan` takes and returns: its settings (:class:`PlanSettings`), the
-answer per pocket (:class:`PocketResult`) and the plan (:class:`Plan`), with the constraint names
+setup's limits as it reads them (:class:`PlanBounds`), the answer per pocket
+(:class:`PocketResult`) and the plan (:class:`Plan`), with the constraint names
 (:data:`CONSTRAINTS`)."""
 
 from __future__ import annotations
@@ -9,9 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from oma.errors import SetupError
 from stability.lobes import LobeDiagram, OperatingPoint
 
-__all__ = ["PlanSettings", "PocketResult", "Plan", "CONSTRAINTS"]
+__all__ = ["PlanSettings", "PlanBounds", "plan_bounds", "PocketResult", "Plan", "CONSTRAINTS"]
 
 #: Names used in ``active_constraints`` and ``infeasible_constraint``.
 CONSTRAINTS = ("stability", "surface_error", "force", "power", "torque",
@@ -86,6 +88,51 @@ class PlanSettings:
             raise ValueError(f"force_feed_nodes must be >= 8, found {self.force_feed_nodes}")
         if not 0 < self.recheck_rtol < 0.1 or not 0 <= self.backoff_slack < 0.1:
             raise ValueError("recheck_rtol must be in (0, 0.1) and backoff_slack in [0, 0.1)")
+
+
+@dataclass(frozen=True)
+class PlanBounds:
+    """The setup's limits as :func:`plan` reads them (:func:`plan_bounds`).
+
+    Attributes
+    ----------
+    rpm, ap, fz : (float, float)
+        Speed (rpm), depth (m) and feed per tooth (m) ranges; a feed range of one value when the
+        limits give none (the cut's feed).
+    margin : float
+        Fraction of the limit depth that may be planned (1 when no margin is given).
+    sle, force, torque, power : float or None
+        ``|SLE|`` on the finished wall (m), peak force (N), mean torque (N m), mean power (W);
+        None: not constrained.
+    """
+
+    rpm: tuple[float, float]
+    ap: tuple[float, float]
+    fz: tuple[float, float]
+    margin: float
+    sle: float | None
+    force: float | None
+    torque: float | None
+    power: float | None
+
+
+def plan_bounds(setup) -> PlanBounds:
+    """:class:`PlanBounds` of a setup; SetupError without cutting coefficients or speed or depth
+    range, or with an empty speed range."""
+    lim = setup.limits
+    if setup.material.cutting_coefficients is None:
+        raise SetupError(None, "material.cutting_coefficients", "cutting coefficients to plan with", "none")
+    if lim.spindle_rpm is None:
+        raise SetupError(None, "limits.spindle_rpm", "a [low, high] speed range to plan in", "none")
+    if lim.axial_depth_m is None:
+        raise SetupError(None, "limits.axial_depth_m", "a [low, high] depth range to plan in", "none")
+    fz = lim.feed_per_tooth_m or (setup.cut.feed_per_tooth_m,) * 2
+    rpm = tuple(float(v) for v in lim.spindle_rpm)
+    if not rpm[0] < rpm[1]:
+        raise SetupError(None, "limits.spindle_rpm", "low < high", f"{list(rpm)}")
+    return PlanBounds(rpm, tuple(float(v) for v in lim.axial_depth_m), tuple(float(v) for v in fz),
+                      float(lim.stability_margin or 1.0), lim.surface_location_error_m, lim.max_force_N,
+                      lim.spindle_torque_N_m, lim.spindle_power_W)
 
 
 # --------------------------------------------------------------------------------------- results
@@ -174,6 +221,10 @@ class Plan:
     diagram : LobeDiagram
         The lobe diagram that located the pockets.
     elapsed_s : float
+    surface_error_height_m : float or None
+        When ``surface_error`` is active: the height above the tool tip, m, at which ``|SLE|`` on
+        the finished wall is largest (the limit binds there; :func:`planner.wall.wall_error` at
+        :attr:`point`); None otherwise.
     """
 
     success: bool
@@ -191,6 +242,7 @@ class Plan:
     pockets: tuple[PocketResult, ...]
     diagram: LobeDiagram
     elapsed_s: float = 0.0
+    surface_error_height_m: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready mapping: the cli.md keys of ``plan`` and the details."""
@@ -200,6 +252,7 @@ class Plan:
             "axial_depth_m": _jf(self.axial_depth_m), "feed_per_tooth_m": _jf(self.feed_per_tooth_m),
             "mrr_m3_s": _jf(self.mrr_m3_s), "active_constraints": list(self.active_constraints),
             "infeasible_constraint": self.infeasible_constraint,
+            "surface_error_height_m": _jf(self.surface_error_height_m),
             "stability_margin": float(self.stability_margin),
             "predicted": None if self.point is None else self.point.to_dict(),
             "pockets": [p.to_dict() for p in self.pockets], "elapsed_s": float(self.elapsed_s),

@@ -45,6 +45,7 @@ from stability.forced import default_harmonics  # noqa: E402
 from stability.lobes import predict_point  # noqa: E402
 from stability.oriented import engaged_axial_integral, force_coefficients  # noqa: E402
 from stability.setup import Limits  # noqa: E402
+from stability.setup_io import read_setup  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "kr500_acetal"
@@ -269,6 +270,63 @@ def test_surface_error_limit_flags_exactly_where_predict_point_exceeds_it():
     assert np.allclose(result.surface_location_error_m, sle, rtol=SLE_RTOL)
     assert np.array_equal(result.flagged("surface_error"), np.abs(sle) > allowed)
     assert result.counts()["surface_error"] == 5
+
+
+def dense_wall(op, tool, cut, n: int = 4001):
+    """|SLE| at ``n`` heights from the tip to the top of the wall, by the library: the steady
+    displacement of predict_point's forced response along the wall's normal when the tooth
+    finishes each height (the tip's instant plus ``kappa z / Omega``, the definition of cli.md's
+    profile, which samples it at 21 heights)."""
+    from stability.oriented import helix_lag_per_m
+
+    fr = op.forced
+    z = np.linspace(0.0, fr.axial_depth_m, n)
+    t = fr.finishing_time_s + helix_lag_per_m(tool) * z / (2 * np.pi * fr.spindle_rpm / 60)
+    return z, np.abs(cut.normal_direction @ fr.displacement_at(t))
+
+
+#: A dense sampling (4001 heights) of a wall over which the largest harmonic turns < 3 times is
+#: within ~(2 pi 3 / 4000)^2 / 8 = 3e-6 below its maximum; predict_point's harmonics differ from the
+#: check's exact ones by ~1e-7 (SLE_RTOL above).
+WALL_RTOL = 1e-5
+
+
+def test_surface_error_is_bounded_on_the_whole_wall_not_the_tip():
+    """formats.md bounds |SLE| on the finished wall. With a helix the wall at height z is finished
+    kappa z / Omega after the tip, and near the example's 720 Hz tool modes (22 500 rpm, 2 teeth)
+    it is far larger at the top than at the tip: points whose tip is within the limit but whose
+    wall is not are violations, valued at the wall's largest |SLE| (ground truth: predict_point's
+    profile, and its forced response sampled densely), with the height where it is."""
+    setup = read_setup(EXAMPLE / "setup.yaml")
+    model = read_modal_model(EXAMPLE / "models" / "planning_model.yaml")
+    coef = setup.material.cutting_coefficients
+    rpm = np.array([22500.0, 22500.0, 21717.0, 15000.0, 9000.0, 2700.0])
+    depth = np.array([12e-3, 6e-3, 24e-3, 10e-3, 5e-3, 6e-3])
+    path = replace(line_path(6, tool=setup.tool, coef=coef, fz=6e-4, ae=setup.cut.radial_depth_m),
+                   spindle_rpm=rpm, axial_depth_m=depth)
+    limit = 3e-4
+    result = check_one(path, model, limits=Limits(surface_location_error_m=limit))
+    tip, profile, wall, height = (np.zeros(6) for _ in range(4))
+    for i in range(6):
+        cut = cut_at(path, i)
+        op = predict_point(model, setup.tool, cut, coef, spindle_rpm=rpm[i], axial_depth_m=depth[i])
+        tip[i], profile[i] = op.surface_location_error_m, np.max(np.abs(op.surface_location_error_profile_m))
+        z, v = dense_wall(op, setup.tool, cut)
+        wall[i], height[i] = v.max(), z[np.argmax(v)]
+    # the premise: at points 0 and 1 the tip is within the limit, the wall (already its 21 samples) is not
+    assert np.all(np.abs(tip[:2]) < 0.7 * limit) and np.all(profile[:2] > 1.2 * limit)
+    assert np.array_equal(result.flagged("surface_error"), wall > limit)
+    assert result.flagged("surface_error").tolist() == [True, True, True, False, False, False]
+    assert np.allclose(result.surface_location_error_m, tip, rtol=SLE_RTOL)  # the per-point SLE: the tip's (cli.md)
+    assert np.all(result.wall_surface_error_m >= profile * (1 - SLE_RTOL))
+    assert np.allclose(result.wall_surface_error_m, wall, rtol=WALL_RTOL)
+    assert np.allclose(result.surface_error_height_m, height, atol=depth.max() / 2000)
+    for v in result.violations:
+        i = v["index"]
+        assert v["kind"] == "surface_error" and v["limit"] == limit
+        assert v["value"] == pytest.approx(wall[i], rel=WALL_RTOL)
+        assert v["height_m"] == pytest.approx(height[i], abs=depth[i] / 2000)
+    assert result.surface_error_height_m[0] == pytest.approx(depth[0], rel=1e-9)  # here: the top of the wall
 
 
 # ------------------------------------------------------------------------------- nearest stable speed

@@ -5,11 +5,9 @@ Ground truth:
 * problems with a closed-form optimum (tests/problems.py: the 1-DOF lobe minimum, a
   power-limited and a force-limited cut);
 * an exhaustive grid search over the same constraints built from the stability library
-  (tests/problems.py: ``grid_search``), on the bundled example and on an aluminium cut with a
-  different tool, and on a low-immersion cut planned with the SDM, each without its
-  surface-error limit: the grid search bounds the surface error at the tool tip only, the
-  planner on the whole finished wall (formats.md; tests/test_plan_limits.py checks that limit
-  against its own search of the wall);
+  (tests/problems.py: ``grid_search``, the surface error on the whole finished wall as formats.md
+  bounds it), on the bundled example and on an aluminium cut with a different tool, and on a
+  low-immersion cut planned with the SDM;
 * every recommended point re-checked here with :func:`stability.lobes.predict_point`;
 * the planner's analytic surface-error, force, torque and power models against
   :func:`stability.lobes.predict_point` at seeded random points;
@@ -61,6 +59,10 @@ SLE_RTOL = 1e-4
 # The reference tables take the peak on 1024 angles per tooth pitch plus both sides of every
 # entry and exit angle; predict_point on 4096: a smooth maximum moves by ~(2 pi / 1024)^2.
 PEAK_RTOL = 1e-5
+# The grid search's first level samples the wall at 8 heights per turn of the harmonic at twice the
+# highest mode: its maximum is low by up to ~(pi / 8)^2 / 2 = 8 % of that harmonic (a screen: the
+# levels after it sample 4x as densely and check exactly); measured 2.5e-4 here.
+WALL_SCREEN_RTOL = 0.01
 
 
 def aluminium_setup(**limits) -> Setup:
@@ -103,20 +105,19 @@ def example_plan(example_setup, planning_model):
 
 
 def without_surface_error(setup: Setup) -> Setup:
-    """The setup without its surface-error limit, for problems.grid_search (which bounds the
-    surface error at the tool tip only, where the limit holds on the whole wall)."""
+    """The setup without its surface-error limit."""
     return replace(setup, limits=replace(setup.limits, surface_location_error_m=None))
 
 
 @pytest.fixture(scope="module")
 def example_plan_no_sle(example_setup, planning_model):
-    """The example without its surface-error limit."""
+    """The example without its surface-error limit (then the spindle power binds)."""
     return plan(without_surface_error(example_setup), planning_model)
 
 
 @pytest.fixture(scope="module")
 def aluminium_plan(planning_model):
-    return plan(without_surface_error(aluminium_setup()), planning_model)
+    return plan(aluminium_setup(), planning_model)
 
 
 def assert_rechecked(result: Plan, setup: Setup, model, method="zoa"):
@@ -176,23 +177,34 @@ def test_cut_model_matches_predict_point(planning_model, example_setup, milling,
 
 def test_reference_tables_match_predict_point(planning_model):
     """The grid-search tables (tests/problems.py) against predict_point, and the feed affinity
-    they use (linear-plus-edge model: force affine in fz)."""
+    they use (linear-plus-edge model: force affine in fz); the surface error at the tip and its
+    largest magnitude on the whole wall (problems.wall_maximum of predict_point's forced
+    response, itself checked against the profile predict_point reports)."""
     setup = aluminium_setup()
     depths, feeds = np.array([1e-3, 4e-3, 9e-3]), np.array([2e-5, 1.1e-4, 2e-4])
     tables = problems._Tables(planning_model, setup, depths, feeds, 2000.0)
     rpm = np.array([2500.0, 9000.0, 17000.0])
-    sle = tables.sle(rpm)
+    sle, wall = tables.sle(rpm), tables.wall(rpm)
+    dense = problems._Tables(planning_model, setup, depths, feeds, 2000.0, wall_per_turn=64).wall(rpm)
     coef = setup.material.cutting_coefficients
-    want = np.zeros(sle.shape)
+    want, want_wall = np.zeros(sle.shape), np.zeros(sle.shape)
     for i, n in enumerate(rpm):
         for j, a in enumerate(depths):
             for k, f in enumerate(feeds):
-                p = predict_point(planning_model, setup.tool, replace(setup.cut, feed_per_tooth_m=f), coef,
-                                  spindle_rpm=n, axial_depth_m=a)
+                cut = replace(setup.cut, feed_per_tooth_m=f)
+                p = predict_point(planning_model, setup.tool, cut, coef, spindle_rpm=n, axial_depth_m=a)
                 want[i, j, k] = p.surface_location_error_m
+                want_wall[i, j, k], z = problems.wall_maximum(p.forced, setup.tool, cut)
+                profile = np.abs(p.surface_location_error_profile_m)
+                assert profile.max() <= want_wall[i, j, k] * (1 + 1e-12) and 0.0 <= z <= a
                 assert tables.peak[j, k, 0] == pytest.approx(p.peak_force_N, rel=PEAK_RTOL)
                 assert tables.peak[j, k, 1] == pytest.approx(p.peak_torque_N_m, rel=PEAK_RTOL)
     assert np.max(np.abs(sle - want)) <= SLE_RTOL * np.max(np.abs(want))
+    assert np.max(np.abs(dense - want_wall)) <= SLE_RTOL * np.max(want_wall)
+    # the default tables sample the wall (a screen): never above its maximum, and close below it
+    assert np.all(wall <= want_wall * (1 + SLE_RTOL))
+    assert np.all(wall >= want_wall * (1 - WALL_SCREEN_RTOL))
+    assert np.max(want_wall / np.abs(want)) > 1.5  # the wall is not the tip on these cuts
 
 
 # ----------------------------------------------------------------------------- closed-form optima
@@ -224,20 +236,33 @@ def test_lobe_minimum_premise():
 
 
 # --------------------------------------------------------------------------- against a grid search
-def test_example_matches_grid_search(example_plan_no_sle, example_setup, planning_model):
-    result, setup = example_plan_no_sle, without_surface_error(example_setup)
-    assert result.method == "zoa"  # ae/D = 0.24: above PlanSettings.sdm_below_immersion
-    assert_rechecked(result, setup, planning_model)
-    ref = problems.grid_search(setup, planning_model)
-    assert result.mrr_m3_s == pytest.approx(ref.mrr_m3_s, rel=GRID_RTOL)
+def assert_grid_meets_limits_on_the_wall(ref, setup: Setup, model, method="zoa"):
+    """The grid search's answer meets the surface-error limit on the whole wall by predict_point's
+    profile (the reference bounds what formats.md bounds, not the tip alone)."""
+    lim = setup.limits
+    if lim.surface_location_error_m is None:
+        return
+    cut = replace(setup.cut, feed_per_tooth_m=ref.feed_per_tooth_m)
+    p = predict_point(model, setup.tool, cut, setup.material.cutting_coefficients, spindle_rpm=ref.spindle_rpm,
+                      axial_depth_m=ref.axial_depth_m, method=method)
+    assert np.max(np.abs(p.surface_location_error_profile_m)) <= (1 + RECHECK_RTOL) * lim.surface_location_error_m
+
+
+def test_example_matches_grid_search(example_plan, example_setup, planning_model):
+    """With its 0.3 mm limit on the finished wall: the grid search bounds the wall too."""
+    assert example_plan.method == "zoa"  # ae/D = 0.24: above PlanSettings.sdm_below_immersion
+    assert_rechecked(example_plan, example_setup, planning_model)
+    ref = problems.grid_search(example_setup, planning_model)
+    assert_grid_meets_limits_on_the_wall(ref, example_setup, planning_model)
+    assert example_plan.mrr_m3_s == pytest.approx(ref.mrr_m3_s, rel=GRID_RTOL)
     # the planner is continuous, the grid is not: it should not lose to it
-    assert result.mrr_m3_s >= ref.mrr_m3_s * (1 - 1e-6)
+    assert example_plan.mrr_m3_s >= ref.mrr_m3_s * (1 - 1e-6)
 
 
 def test_example_is_power_limited_at_the_closed_form(example_plan_no_sle, example_setup, planning_model):
-    """Without its surface-error limit, the spindle power binds on the example at the largest
-    feed; then MRR = P fz ae N / (2 pi (tau_c fz + tau_e)) (mean torque per unit depth tau affine
-    in fz), whatever the speed."""
+    """Without its surface-error limit (with it, the wall's surface error binds first), the
+    spindle power binds on the example at the largest feed; then MRR = P fz ae N / (2 pi (tau_c fz
+    + tau_e)) (mean torque per unit depth tau affine in fz), whatever the speed."""
     example_plan = example_plan_no_sle
     assert {"power", "feed_max"} <= set(example_plan.active_constraints)
     s = example_setup
@@ -259,13 +284,13 @@ def test_example_bounds_the_surface_error_on_the_whole_wall(example_plan, exampl
 
 
 def test_aluminium_matches_grid_search(aluminium_plan, planning_model):
-    setup = without_surface_error(aluminium_setup())
+    setup = aluminium_setup()
     assert aluminium_plan.method == "zoa"
     assert_rechecked(aluminium_plan, setup, planning_model)
-    # here stability binds at the largest feed (with the surface error on the wall, both bind
-    # together: tests/test_plan_limits.py), not power
-    assert {"stability", "feed_max"} <= set(aluminium_plan.active_constraints)
+    # here stability and the surface error on the wall bind together (a corner), not power
+    assert {"stability", "surface_error"} <= set(aluminium_plan.active_constraints)
     ref = problems.grid_search(setup, planning_model)
+    assert_grid_meets_limits_on_the_wall(ref, setup, planning_model)
     assert aluminium_plan.mrr_m3_s == pytest.approx(ref.mrr_m3_s, rel=GRID_RTOL)
     assert aluminium_plan.mrr_m3_s >= ref.mrr_m3_s * (1 - 1e-6)
 
@@ -312,10 +337,9 @@ def test_torque_limit_bounds_the_mean_torque_not_the_peak():
 
 def test_sdm_low_immersion_matches_grid_search(tool_model):
     """ae/D = 0.1: 'auto' takes the SDM; the answer is SDM-stable and not worse than a grid search
-    with SDM limits (same resolution) by more than the grid tolerance (no surface-error limit:
-    see without_surface_error)."""
+    with SDM limits (same resolution) by more than the grid tolerance."""
     setup = low_immersion_setup(spindle_rpm=(13000.0, 16000.0), axial_depth_m=(2e-4, 3e-2),
-                                surface_location_error_m=None)
+                                surface_location_error_m=2e-5)
     result = plan(setup, tool_model, settings=PlanSettings(n_rpm_sdm=24))
     assert result.method == "sdm"
     assert_rechecked(result, setup, tool_model, method="sdm")
@@ -329,6 +353,7 @@ def test_sdm_low_immersion_matches_grid_search(tool_model):
         return np.asarray(d.depth_limit_m)
 
     ref = problems.grid_search(setup, tool_model, limit_at=limit_at, n_rpm=60, n_local_rpm=21, n_refine=3)
+    assert_grid_meets_limits_on_the_wall(ref, setup, tool_model, method="sdm")
     assert result.mrr_m3_s == pytest.approx(ref.mrr_m3_s, rel=GRID_RTOL)
 
 
@@ -419,6 +444,28 @@ def test_to_dict_is_json_with_the_cli_keys(example_plan):
     assert d["predicted"]["stable"] is True
     assert len(d["pockets"]) == len(example_plan.pockets) > 10  # one NLP per pocket of the lobes
     assert sum(p["verified"] is True for p in d["pockets"]) >= 1
+
+
+def test_the_height_where_the_wall_binds_is_reported(example_plan, example_setup, capsys):
+    """With ``surface_error`` active, the plan names the height on the wall where |SLE| is largest
+    (the limit binds there): a JSON field, equal to the largest |SLE| of predict_point's forced
+    response found independently (problems.wall_maximum), and in plan's human output; None when
+    the surface error does not bind."""
+    from planner.cli import main
+
+    d = json.loads(json.dumps(example_plan.to_dict()))
+    assert "surface_error" in d["active_constraints"]
+    worst, z = problems.wall_maximum(example_plan.point.forced, example_setup.tool,
+                                     replace(example_setup.cut, feed_per_tooth_m=example_plan.feed_per_tooth_m))
+    assert worst == pytest.approx(example_setup.limits.surface_location_error_m, rel=5e-3)  # _ACTIVE_RTOL
+    assert d["surface_error_height_m"] == pytest.approx(z, abs=1e-6 * example_plan.axial_depth_m)
+    assert 0.0 < d["surface_error_height_m"] <= example_plan.axial_depth_m
+    code = main(["plan", str(EXAMPLE / "setup.yaml"), "--model", str(EXAMPLE / "models" / "planning_model.yaml")])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert f"surface_error (at z = {1e3 * d['surface_error_height_m']:.2f} mm on the wall)" in out
+    pr = problems.force_limited()  # no surface-error limit
+    assert plan(pr.setup, pr.structure).to_dict()["surface_error_height_m"] is None
 
 
 def test_every_pocket_has_a_start_and_an_answer(example_plan):
