@@ -230,10 +230,15 @@ def _step_plan(example: Example, report: Report) -> None:
                  f"{1e6 * result.mrr_m3_s:.2f} cm^3/s; active constraints: "
                  f"{', '.join(result.active_constraints) or 'none'}. Model: {example.planning_label}.")
         point = result.point
+        from planner.wall import wall_error
+
+        wall, height = wall_error(point, example.setup.tool, example.setup.cut)
         sec.table(["quantity", "value", "limit"], [
             ["depth / stability limit", result.axial_depth_m / point.depth_limit_m, example.setup.limits.stability_margin],
-            ["surface location error um", 1e6 * point.surface_location_error_m,
+            [f"largest |surface location error| on the wall um (at z = {1e3 * height:.1f} mm; the limit's)", 1e6 * wall,
              1e6 * (example.setup.limits.surface_location_error_m or float("nan"))],
+            ["surface location error at the tool tip um (reported, cli.md)", 1e6 * point.surface_location_error_m,
+             float("nan")],
             ["peak force N", point.peak_force_N, example.setup.limits.max_force_N],
             ["power W", point.power_W, example.setup.limits.spindle_power_W],
             ["mean torque N m", point.mean_torque_N_m, example.setup.limits.spindle_torque_N_m],
