@@ -4,11 +4,17 @@ Run from the repository root::
 
     MPLBACKEND=Agg .venv/bin/python benchmarks/bench_lobes.py          # full (about 1-2 minutes)
     MPLBACKEND=Agg .venv/bin/python benchmarks/bench_lobes.py --quick  # fewer repeats
+    MPLBACKEND=Agg .venv/bin/python benchmarks/bench_lobes.py --only zoa  # the ZOA cases (1, 1b)
 
 Cases
 
 1. ZOA: a 2x2 structure (5 oblique modes in the feed-normal plane, 180-1400 Hz), 10^4 chatter
    frequencies, every lobe reaching 2000-20000 rpm, envelope on 2000 speeds plus the exact cusps.
+1b. ZOA on the example cell (examples/kr500_acetal: planning model and setup) with its 720/735 Hz
+   tool modes at 0.5 % damping, where lobes start inside a grid interval: ``predict_point`` at
+   22 195 rpm and the lobe diagram on 1000 speeds over 500-24 000 rpm (default 10^4 lines), and
+   the diagram's largest deviation from the same ZOA on 2 x 10^5 lines (before the 2026-11-26 fix:
+   up to 7.9x).
 2. SDM: the Insperger-Stepan / Ding 1-DOF benchmark (fn 922 Hz, zeta 0.011, 2 teeth), slotting and
    a/D = 0.05, 200 speeds over 5000-25000 rpm, step count chosen for rtol = 1 % by the convergence
    rule (included in the time).
@@ -116,6 +122,32 @@ def zoa_case(repeats):
     }
 
 
+def zoa_light_case(repeats):
+    from oma.modal_io import read_modal_model
+    from stability.lobes import predict_point
+    from stability.setup_io import read_setup
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "kr500_acetal"
+    base = read_modal_model(example / "models" / "planning_model.yaml")
+    zeta = np.where(np.isin(base.natural_frequency_hz, [720.0, 735.0]), 0.005, base.damping_ratio)
+    model = ModalModel(base.natural_frequency_hz, zeta, base.stiffness_N_m, base.directions,
+                       base.residual_compliance_m_N)
+    setup = read_setup(example / "setup.yaml")
+    args = (model, setup.tool, setup.cut, setup.material.cutting_coefficients)
+    t_point, _ = timed(lambda: predict_point(*args, spindle_rpm=22195.0, axial_depth_m=0.005), repeats)
+    t, diagram = timed(lambda: lobe_diagram(*args, rpm_range=(500.0, 24000.0), n_rpm=1000), repeats)
+    grid = ~diagram.is_intersection
+    fn = model.natural_frequency_hz
+    fine = zoa.envelope(*args, diagram.rpm[grid], freq_hz=np.geomspace(fn.min() / 3, fn.max() * 3, 200_000))
+    dev = np.max(np.abs(diagram.depth_limit_m[grid] / fine.depth_limit_m[~fine.is_intersection] - 1))
+    return {
+        "name": "ZOA example cell, tool modes at 0.5 % damping, 1000 rpm",
+        "median_s": t, "runs": repeats,
+        "detail": (f"predict_point {t_point * 1e3:.1f} ms; diagram vs 2e5 lines: max |rel| {dev:.1e}, "
+                   f"min depth {diagram.min_depth_limit_m * 1e3:.4f} mm"),
+    }
+
+
 BENCH = ModalModel([922.0], [0.011], [0.03993 * (2 * np.pi * 922.0) ** 2], [[1, 0, 0]])
 TOOL = Tool(2, 0.01)
 COEF = CuttingCoefficients(6e8, 2e8)
@@ -167,10 +199,17 @@ def dense_comparison(cut, diagram, speeds, repeats):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats")
+    parser.add_argument("--only", choices=["zoa"], default=None, help="only the ZOA cases")
     args = parser.parse_args(argv)
     rep_zoa, rep_sdm, rep_cmp = (3, 1, 3) if args.quick else (7, 5, 5)
     print(f"BLAS threads: {os.environ.get('OPENBLAS_NUM_THREADS')}; medians of repeated runs\n")
-    rows = [zoa_case(rep_zoa)]
+    rows = [zoa_case(rep_zoa), zoa_light_case(rep_zoa)]
+    if args.only == "zoa":
+        print(f"{'case':58s} {'runs':>4s} {'median':>10s}")
+        for r in rows:
+            print(f"{r['name']:58s} {r['runs']:4d} {r['median_s']:9.3f}s")
+            print(f"    {r['detail']}")
+        return 0
     cut_slot, slot, row = sdm_case(1.0, rep_sdm)
     rows.append(row)
     cut_low, low, row = sdm_case(0.05, rep_sdm)

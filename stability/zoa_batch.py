@@ -3,14 +3,16 @@
 The batch counterpart of :func:`stability.zoa.envelope`, used by ``robomill check`` where a toolpath
 asks for the limit at thousands of (structure, speed) pairs: for each *structure group* (one
 oriented 2 x 2 receptance, given by its modes' natural frequencies, damping ratios, stiffnesses and
-orientation weights) the two eigenvalue branches of ``G_or(f) B0`` are sampled once on the log
-chatter-frequency grid of :func:`stability.zoa.default_chatter_frequencies` and continued in
-frequency (each follows one eigenvalue through the swaps of their order, as
-:meth:`stability.zoa.ZOACurves.continued`); every speed of the group is then solved on that grid
-exactly as :func:`stability.zoa.envelope` solves one speed (candidate lobe intervals, the same
-preselection factor, a bracketed Illinois solve of the phase condition), so the limits equal
-:func:`stability.lobes.predict_point`'s. Where a query asks for it and the speed is unstable at the
-allowed depth, the nearest stable speed is found on the same grid (see :func:`_k_nearest`).
+orientation weights) the two eigenvalue branches of ``G_or(f) B0`` are sampled once on the
+chatter-frequency grid of :func:`stability.zoa.default_chatter_frequencies` (log lines, plus lines
+around a lightly damped mode: :func:`_k_grid`) and continued in frequency (each follows one
+eigenvalue through the swaps of their order, as :meth:`stability.zoa.ZOACurves.continued`); every
+speed of the group is then solved on that grid exactly as :func:`stability.zoa.envelope` solves one
+speed (candidate lobe intervals, those where a lobe starts included from the onset, the same
+preselection factor and second pass, a bracketed Illinois solve of the phase condition), so the
+limits equal :func:`stability.lobes.predict_point`'s. Where a query asks for it and the speed is
+unstable at the allowed depth, the nearest stable speed is found on the same grid (see
+:func:`_k_nearest`).
 
 The functions are plain Python compiled by numba on first use (:func:`scan_kernel`; cached on
 disk), so that importing this module does not import numba.
@@ -23,7 +25,7 @@ import math
 
 import numpy as np
 
-from .zoa import _PRESELECT_FACTOR as _PRESELECT
+from .zoa import _BOUND_FACTOR as _BOUND, _ONSET_ITERS, _PRESELECT_FACTOR as _PRESELECT, MODE_LINES, MODE_STEPS
 
 __all__ = ["scan_kernel"]
 
@@ -119,18 +121,33 @@ def _k_solve(b, k, rpm, teeth, f_lo, f_hi, g_lo, g_hi, fn, zeta, stiff, w, wres)
     return d, f, p / _TWO_PI + k - x * f
 
 
-def _k_limit(rpm, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
+def _k_add(cand, cap, n_cand, b, k, i, d, bound):
+    """Write candidate ``n_cand`` (branch, lobe, interval, interpolated depth, the segment's smaller
+    end depth) into ``cand`` (grown when full); return it and its capacity."""
+    if n_cand == cap:
+        more = np.empty((2 * cap, 5))
+        more[:cap] = cand
+        cand, cap = more, 2 * cap
+    cand[n_cand, 0], cand[n_cand, 1], cand[n_cand, 2], cand[n_cand, 3], cand[n_cand, 4] = b, k, i, d, bound
+    return cand, cap
+
+
+def _k_limit(rpm, teeth, freq, dep, pha, gap, valid, ons_at, ons_f, ons_p, ons_x, ons_g, fn, zeta, stiff, w, wres):
     """ZOA limit depth and chatter frequency at one speed from the sampled continued branches (as
-    ``stability.zoa._lowest_lobe``). ``valid[b, i]``: interval ``i`` of branch ``b`` can hold a lobe
-    (finite depth at both ends); ``pha`` is the phase over 2 pi; ``gap`` the continued
-    ``lambda_0 - lambda_1`` at the grid frequencies."""
+    ``stability.zoa._lowest_lobe``). ``valid[b, i]``: interval ``i`` of branch ``b`` holds a lobe
+    segment (1: finite depths at both ends; 2: at one end, and the segment starts at the onset
+    ``ons_f[b, i]``, phase ``ons_p`` in turns, solved from the exact onset ``ons_x``, gap
+    ``ons_g``, see :func:`_k_onset`; 0: none); ``ons_at`` lists the 2s as ``b (n - 1) + i``
+    (then -1); ``pha`` is the phase over 2 pi; ``gap`` the continued ``lambda_0 - lambda_1`` at the
+    grid frequencies."""
     nf = freq.shape[0]
     xs = 60.0 / teeth
     inv = xs / rpm
     # the candidates: lobe k crosses the speed inside interval i (zoa's test, in speed), with the
-    # depth interpolated there; those within the preselection factor of the smallest are solved
+    # depth interpolated there; those within the preselection factor of the smallest are solved,
+    # then those whose segment may still hold a depth below the smallest solved (zoa's two passes)
     cap = 256
-    cand = np.empty((cap, 4))
+    cand = np.empty((cap, 5))
     n_cand = 0
     best = np.inf
     for b in range(2):
@@ -138,7 +155,7 @@ def _k_limit(rpm, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
         for i in range(nf - 1):
             h0 = h1
             h1 = freq[i + 1] * inv - pha[b, i + 1]
-            if not valid[b, i]:
+            if valid[b, i] != 1:
                 continue
             # lobe k can reach the speed in the interval only if k lies between h0 and h1 (the
             # 1e-9 lets the speed test below decide the cases rounding could tip)
@@ -154,19 +171,52 @@ def _k_limit(rpm, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
                     t = 0.5
                 t = min(max(t, 0.0), 1.0)
                 d = dep[b, i] + t * (dep[b, i + 1] - dep[b, i])
-                if n_cand == cap:  # grow
-                    more = np.empty((2 * cap, 4))
-                    more[:cap] = cand
-                    cand, cap = more, 2 * cap
-                cand[n_cand, 0], cand[n_cand, 1], cand[n_cand, 2], cand[n_cand, 3] = b, k, i, d
+                cand, cap = _k_add(cand, cap, n_cand, b, k, i, d, min(dep[b, i], dep[b, i + 1]))
                 n_cand += 1
                 best = min(best, d)
+    # the onset intervals (a few): 2 Re lambda linear in the tooth period y from 0 at the onset
+    y = 1.0 / rpm
+    for m in range(ons_at.shape[0]):
+        if ons_at[m] < 0:
+            break
+        b, i = ons_at[m] // (nf - 1), ons_at[m] % (nf - 1)
+        left = not dep[b, i] < np.inf
+        f_fin, p_fin, d_fin = (freq[i + 1], pha[b, i + 1], dep[b, i + 1]) if left else (freq[i], pha[b, i], dep[b, i])
+        f_on, p_on = ons_f[b, i], ons_p[b, i]
+        h_on, h_fin = f_on * inv - p_on, f_fin * inv - p_fin
+        ka = max(0, int(math.ceil(min(h_on, h_fin) - 1e-9)))
+        kb = int(math.floor(max(h_on, h_fin) + 1e-9))
+        for k in range(ka, kb + 1):
+            y_on = (p_on + k) / (xs * f_on)
+            y_fin = (p_fin + k) / (xs * f_fin)
+            if not (min(y_on, y_fin) <= y <= max(y_on, y_fin)):
+                continue
+            t = (y - y_on) / (y_fin - y_on) if y_fin != y_on else 0.5
+            t = min(max(t, 0.0), 1.0)
+            d = d_fin / t if t > 0.0 else np.inf
+            cand, cap = _k_add(cand, cap, n_cand, b, k, i, d, d_fin)
+            n_cand += 1
+            best = min(best, d)
     out_d, out_f = np.inf, np.nan
-    for j in range(n_cand):
-        if cand[j, 3] <= _PRESELECT * best:
+    exact = np.inf  # the smallest depth of the first pass
+    for second in range(2):
+        if second == 1:
+            exact = out_d
+        for j in range(n_cand):
+            first = cand[j, 3] <= _PRESELECT * best
+            if second == 0:
+                if not first:
+                    continue
+            elif first or not cand[j, 4] < _BOUND * exact:
+                continue
             b, k, i = int(cand[j, 0]), int(cand[j, 1]), int(cand[j, 2])
-            d, f, res = _k_solve(b, k, rpm, teeth, freq[i], freq[i + 1], gap[i], gap[i + 1], fn, zeta, stiff, w,
-                                 wres)
+            f0, f1, g0, g1 = freq[i], freq[i + 1], gap[i], gap[i + 1]
+            if valid[b, i] == 2:  # from the exact onset
+                if not dep[b, i] < np.inf:
+                    f0, g0 = ons_x[b, i], ons_g[b, i]
+                else:
+                    f1, g1 = ons_x[b, i], ons_g[b, i]
+            d, f, res = _k_solve(b, k, rpm, teeth, f0, f1, g0, g1, fn, zeta, stiff, w, wres)
             if d < np.inf and abs(res) < 1e-8 and d < out_d:
                 out_d, out_f = d, f
     return out_d, out_f
@@ -192,8 +242,9 @@ def _k_crossing(b, target, f_a, f_b, g_a, g_b, fn, zeta, stiff, w, wres):
 def _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
     """Speed intervals in which some lobe lies below depth ``thr``: the images, under every lobe's
     speed map ``n_k(f) = 60 f / (N (eps(f) / 2 pi + k))``, of the frequency runs where a continued
-    branch's critical depth is below ``thr`` (on the intervals the ZOA solve uses: finite ends).
-    Returns (starts, ends), arrays."""
+    branch's critical depth is below ``thr`` (on the intervals the ZOA solve uses, ``valid``; in an
+    onset interval the run starts or ends where ``2 Re lambda = 1 / thr``, as at any other crossing
+    of ``thr``). Returns (starts, ends), arrays."""
     nf = freq.shape[0]
     xs = 60.0 / teeth
     starts = np.empty(256)
@@ -258,7 +309,8 @@ def _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, ze
     return starts[:n_int], ends[:n_int]
 
 
-def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres):
+def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, ons_at, ons_f, ons_p, ons_x, ons_g, fn, zeta,
+               stiff, w, wres):
     """Speed nearest to ``rpm0`` in ``[lo, hi]`` whose ZOA limit is at least ``thr`` (NaN: none).
 
     The candidates are the ends of the connected unstable speed set around ``rpm0``; each is moved
@@ -268,7 +320,8 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, s
     nearer.
     """
     p = min(max(rpm0, lo), hi)
-    if p != rpm0 and _k_limit(p, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+    lim = (teeth, freq, dep, pha, gap, valid, ons_at, ons_f, ons_p, ons_x, ons_g, fn, zeta, stiff, w, wres)
+    if p != rpm0 and _k_limit(p, *lim)[0] >= thr:
         return p
     starts, ends = _k_unstable_intervals(thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)
     left, right = p, p
@@ -289,7 +342,7 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, s
             step = 1e-9
             while step <= 1.01e-4:
                 c = min(right * (1.0 + step), hi)
-                if _k_limit(c, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+                if _k_limit(c, *lim)[0] >= thr:
                     found_r = c
                     break
                 reach_r = c
@@ -298,7 +351,7 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, s
             step = 1e-9
             while step <= 1.01e-4:
                 c = max(left * (1.0 - step), lo)
-                if _k_limit(c, teeth, freq, dep, pha, gap, valid, fn, zeta, stiff, w, wres)[0] >= thr:
+                if _k_limit(c, *lim)[0] >= thr:
                     found_l = c
                     break
                 reach_l = c
@@ -319,21 +372,89 @@ def _k_nearest(rpm0, thr, lo, hi, teeth, freq, dep, pha, gap, valid, fn, zeta, s
     return np.nan
 
 
-def _k_branches(f_lo, f_hi, fn, zeta, stiff, w, wres, freq, dep, pha, gap, valid):
-    """Sample the two eigenvalue branches of one structure group on the log chatter-frequency grid
-    ``f_lo .. f_hi`` (``freq.shape[0]`` lines), continued in frequency, into the work arrays:
-    ``freq``, limit depth ``dep`` and phase ``pha`` (in turns) per branch (``inf``/NaN where the
-    real part is not positive), the branch gap ``gap`` and ``valid`` (both ends of a segment
-    finite). Shared by :func:`_k_scan` and the atlas kernel (``planner.atlas._kernel``)."""
-    n_freq = freq.shape[0]
+def _k_grid(f_lo, f_hi, n_log, fn, zeta, stiff, freq):
+    """Write the chatter-frequency grid of :func:`stability.zoa.default_chatter_frequencies` into
+    ``freq`` (increasing, distinct) and return its length: ``n_log`` log-spaced lines ``f_lo ..
+    f_hi`` and the lines around the lightly damped modes (``stability.zoa._mode_lines``, the same
+    rule and order of operations)."""
     a = math.log(f_lo)
-    step = (math.log(f_hi) - a) / (n_freq - 1)
-    for i in range(n_freq):
+    step = (math.log(f_hi) - a) / (n_log - 1)
+    for i in range(n_log):
         freq[i] = math.exp(i * step + a)
-    freq[0], freq[n_freq - 1] = f_lo, f_hi
+    freq[0], freq[n_log - 1] = f_lo, f_hi
+    n = n_log
+    h = 1.0 / MODE_STEPS
+    for r in range(fn.shape[0]):
+        ratio = step / (zeta[r] * h) if zeta[r] > 0.0 else np.inf
+        if not stiff[r] < np.inf or ratio <= 1.0:
+            continue
+        m = MODE_LINES if not ratio < np.inf else min(MODE_LINES, int(math.acosh(ratio) / h))
+        for j in range(-m, m + 1):
+            f = fn[r] * (1.0 + zeta[r] * math.sinh(j * h))
+            if f_lo < f < f_hi:
+                freq[n] = f
+                n += 1
+    if n > n_log:
+        freq[:n] = np.sort(freq[:n])
+        m = 1
+        prev = freq[0]
+        for i in range(1, n):
+            fi = freq[i]
+            if fi > prev * (1.0 + 1e-12):  # as zoa._merge_lines: against the line before
+                freq[m] = fi
+                m += 1
+            prev = fi
+        n = m
+    return n
+
+
+def _k_onset(b, f0, f1, g0, g1, p_fin, fn, zeta, stiff, w, wres):
+    """The onset ``Re lambda_b = 0`` in the grid interval ``[f0, f1]`` (continued gaps ``g0``,
+    ``g1``; ``p_fin`` the phase in turns at its finite end) where the sign of ``Re lambda_b``
+    changes, as ``stability.zoa._Onsets``: the onset with ``Re lambda`` interpolated linearly
+    between the lines and the phase in turns there (1 if ``Im lambda``, interpolated, is positive,
+    else 0), for the lobe's speeds and the interpolated depth; and the exact onset, the end with
+    ``Re lambda_b <= 0`` of an Illinois bracket narrowed to 1e-13, with the gap interpolated there,
+    for the phase solve's bracket."""
+    l0 = _k_branch(f0, b, f0, f1, g0, g1, fn, zeta, stiff, w, wres)
+    l1 = _k_branch(f1, b, f0, f1, g0, g1, fn, zeta, stiff, w, wres)
+    t = l0.real / (l0.real - l1.real)
+    f_lin = f0 + t * (f1 - f0)
+    im = l0.imag + t * (l1.imag - l0.imag)
+    p_on = 1.0 if (im > 0.0 or (im == 0.0 and p_fin > 0.5)) else 0.0
+    a, ga, c, gc = f0, l0.real, f1, l1.real
+    side = 0
+    for _ in range(_ONSET_ITERS):
+        m = (a * gc - c * ga) / (gc - ga) if gc != ga else 0.5 * (a + c)
+        if not (min(a, c) < m < max(a, c)):
+            m = 0.5 * (a + c)
+        gm = _k_branch(m, b, f0, f1, g0, g1, fn, zeta, stiff, w, wres).real
+        if (gm > 0.0) == (gc > 0.0):
+            if side == -1:
+                ga = ga / 2.0
+            c, gc, side = m, gm, -1
+        else:
+            if side == 1:
+                gc = gc / 2.0
+            a, ga, side = m, gm, 1
+        if abs(c - a) <= 1e-13 * abs(c):
+            break
+    f_on = c if ga > 0.0 else a
+    t = (f_on - f0) / (f1 - f0)
+    return f_lin, p_on, f_on, g0 + t * (g1 - g0)
+
+
+def _k_branches(n, freq, fn, zeta, stiff, w, wres, dep, pha, gap, valid, ons_at, ons_f, ons_p, ons_x, ons_g):
+    """Sample the two eigenvalue branches of one structure group at ``freq[:n]`` (:func:`_k_grid`),
+    continued in frequency, into the work arrays: limit depth ``dep`` and phase ``pha`` (in turns)
+    per branch (``inf``/NaN where the real part is not positive), the branch gap ``gap``,
+    ``valid`` (int8: 1 the interval holds a lobe segment between finite depths, 2 one from the onset
+    of a lobe inside it, one end's depth infinite, 0 none) and, for 2, the onset (:func:`_k_onset`):
+    interpolated ``ons_f`` with its phase ``ons_p``, exact ``ons_x`` with the gap ``ons_g`` there;
+    ``ons_at`` lists the onset intervals as ``b (n - 1) + i``, then -1."""
     swapped = False
     prev = 0j
-    for i in range(n_freq):
+    for i in range(n):
         l1, l2 = _k_lam(freq[i], fn, zeta, stiff, w, wres)
         # continue the branches: the sorted gap l1 - l2 turning by more than 90 degrees from
         # the previous frequency's means the sorted order has swapped (stability.zoa's rule)
@@ -353,36 +474,55 @@ def _k_branches(f_lo, f_hi, fn, zeta, stiff, w, wres, freq, dep, pha, gap, valid
         if l2.real > 0.0:
             d, p = _k_depth_phase(l2)
             dep[1, i], pha[1, i] = d, p / _TWO_PI
+    n_on = 0
     for b in range(2):
-        for i in range(n_freq - 1):
-            valid[b, i] = dep[b, i] < np.inf and dep[b, i + 1] < np.inf
+        for i in range(n - 1):
+            fin0, fin1 = dep[b, i] < np.inf, dep[b, i + 1] < np.inf
+            valid[b, i] = 1 if fin0 and fin1 else (2 if fin0 or fin1 else 0)
+            if fin0 != fin1:
+                p_fin = pha[b, i + 1] if fin1 else pha[b, i]
+                ons_f[b, i], ons_p[b, i], ons_x[b, i], ons_g[b, i] = _k_onset(b, freq[i], freq[i + 1], gap[i],
+                                                                             gap[i + 1], p_fin, fn, zeta, stiff, w,
+                                                                             wres)
+                ons_at[n_on] = b * (n - 1) + i
+                n_on += 1
+    ons_at[n_on:] = -1
 
 
 def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q_thr, q_lo, q_hi, q_near,
             out_depth, out_freq, out_near):
-    """For every structure group: sample both branches on the log frequency grid of
-    ``stability.zoa.default_chatter_frequencies``, continued in frequency as in
+    """For every structure group: sample both branches on the chatter-frequency grid of
+    ``stability.zoa.default_chatter_frequencies`` (:func:`_k_grid`), continued in frequency as in
     ``stability.zoa.ZOACurves.continued``, then answer its queries (limit at a speed and, where
     flagged and unstable, the nearest stable speed)."""
-    freq = np.empty(n_freq)
-    dep = np.empty((2, n_freq))
-    pha = np.empty((2, n_freq))
-    gap = np.empty(n_freq, dtype=np.complex128)
-    valid = np.empty((2, n_freq - 1), dtype=np.bool_)
+    n_max = n_freq + fn.shape[1] * (2 * MODE_LINES + 1)
+    grid = np.empty(n_max)
     for g in range(fn.shape[0]):
         fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
-        _k_branches(f_lo[g], f_hi[g], fn_g, zeta_g, stiff_g, w_g, wres_g, freq, dep, pha, gap, valid)
+        n = _k_grid(f_lo[g], f_hi[g], n_freq, fn_g, zeta_g, stiff_g, grid)
+        freq = grid[:n].copy()
+        dep = np.empty((2, n))
+        pha = np.empty((2, n))
+        gap = np.empty(n, dtype=np.complex128)
+        valid = np.empty((2, n - 1), dtype=np.int8)
+        ons_at = np.empty(2 * (n - 1), dtype=np.int64)
+        ons_f = np.empty((2, n - 1))
+        ons_p = np.empty((2, n - 1))
+        ons_x = np.empty((2, n - 1))
+        ons_g = np.empty((2, n - 1), dtype=np.complex128)
+        ons = (ons_at, ons_f, ons_p, ons_x, ons_g)
+        _k_branches(n, freq, fn_g, zeta_g, stiff_g, w_g, wres_g, dep, pha, gap, valid, *ons)
         for q in range(q_ptr[g], q_ptr[g + 1]):
-            d, fc = _k_limit(q_rpm[q], teeth, freq, dep, pha, gap, valid, fn_g, zeta_g, stiff_g, w_g, wres_g)
+            d, fc = _k_limit(q_rpm[q], teeth, freq, dep, pha, gap, valid, *ons, fn_g, zeta_g, stiff_g, w_g, wres_g)
             out_depth[q], out_freq[q] = d, fc
             out_near[q] = np.nan
             if q_near[q] and d < q_thr[q]:
                 out_near[q] = _k_nearest(q_rpm[q], q_thr[q], q_lo[q], q_hi[q], teeth, freq, dep, pha, gap, valid,
-                                         fn_g, zeta_g, stiff_g, w_g, wres_g)
+                                         *ons, fn_g, zeta_g, stiff_g, w_g, wres_g)
 
 
-_KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branches", "_k_branch", "_k_solve", "_k_limit", "_k_crossing",
-                 "_k_unstable_intervals", "_k_nearest", "_k_scan")
+_KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid", "_k_onset", "_k_branches",
+                 "_k_add", "_k_limit", "_k_crossing", "_k_unstable_intervals", "_k_nearest", "_k_scan")
 _PY_KERNELS = {name: globals()[name] for name in _KERNEL_NAMES}
 _COMPILED: list = []
 
