@@ -200,3 +200,103 @@ def test_the_planned_cut_is_verified_by_directly_solved_samples(case):
     verify_plan(limit, learned, rpm, 1.3 * a)
     assert not learned["check"]["holds"] and learned["check"]["probability_stable"] < 0.8
     assert "below the level 0.9" in learned["warnings"][0]
+
+
+@pytest.fixture(scope="module")
+def wide(case, tmp_path_factory):
+    """The case over 2-14 krpm, where the bound leaves the low speeds out: the posterior with the
+    training cuts' error at 0.05, above the table checks' (about 0.01 here), so that the soft
+    boundary does not depend on the speeds checked and the whole table's plan is the reference."""
+    d = tmp_path_factory.mktemp("wide")
+    _, setup, post = case
+    post = replace(post, likelihood=replace(post.likelihood, model_error=0.05))
+    setup = replace(setup, limits=replace(setup.limits, spindle_rpm=(2000.0, 14000.0)))
+    write_setup(setup, d / "setup.yaml")
+    write_posterior_model(post, d / "post.yaml")
+    return d, setup, read_posterior(d / "post.yaml")
+
+
+def test_plan_tabulates_only_the_speeds_where_a_cut_could_beat_it(wide, capsys):
+    """``plan`` builds the chance limit's table from the top speed down, only as far as a cut
+    could beat the plan found: its answer is the plan on the table over the whole range, the
+    removal-rate bound (largest depth and feed) below the tabulated range is under it, the best
+    plan down there (whole table) is worse, and the JSON says which speeds and why."""
+    from oma.modal_io import read_modal_model
+    from planner.optimize import plan
+
+    d, setup, post = wide
+    code = main(["plan", str(d / "setup.yaml"), "--model", str(d / "post.yaml"), "--probability", "0.9", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["success"]
+    learned = out["learned"]
+    lo = learned["rpm_range"][0]
+    # the first table spans the top octave (7-14 krpm); on this case it was extended below it
+    assert 2000.0 < lo < 7000.0 and learned["rpm_range"][1] == 14000.0 and learned["rpm_range_plans"] >= 1
+    assert learned["rpm_range_note"].startswith(f"speeds below {lo:.0f} rpm not tabulated")
+    assert set(learned["timings_s"]) == {"tables", "checks", "plans"}
+    # the plan on the table over the whole range: the same cut (to the optimiser's tolerance)
+    model = read_modal_model(d / "post.yaml")
+    whole = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=0.9)
+    assert whole.boundary_width == pytest.approx(learned["boundary_width"], rel=1e-12)
+    ref = plan(setup, model, stability_limit=whole)
+    assert "stability" in out["active_constraints"] and ref.success
+    for key in ("spindle_rpm", "axial_depth_m", "feed_per_tooth_m", "mrr_m3_s"):
+        assert out[key] == pytest.approx(getattr(ref, key), rel=1e-6), key
+    # no cut below the tabulated range could beat it: the bound, evaluated ...
+    lim = setup.limits
+    bound = lim.axial_depth_m[1] * setup.cut.radial_depth_m * lim.feed_per_tooth_m[1] * setup.tool.teeth * lo / 60
+    assert learned["rpm_range_below_mrr_m3_s"] == pytest.approx(bound, rel=1e-12)
+    assert bound < out["mrr_m3_s"]
+    # ... and the best plan down there, on the whole table, removes less still
+    below = plan(replace(setup, limits=replace(lim, spindle_rpm=(2000.0, lo))), model, stability_limit=whole)
+    assert below.mrr_m3_s < bound
+
+
+def test_the_chance_depth_is_none_outside_the_tabulated_speeds(wide):
+    """Outside its range a chance limit certifies no depth (1 nm: ``plan`` finds no cut there)."""
+    from planner.learn.predictive import UNTABULATED_DEPTH_M
+    from planner.learn.speed_range import chance_limit_for_plan
+    from oma.modal_io import read_modal_model
+
+    d, setup, post = wide
+    limit, speeds = chance_limit_for_plan(post, read_modal_model(d / "post.yaml"), setup, probability=0.9)
+    lo, hi = limit.rpm_range
+    assert speeds.restricted and speeds.rpm_range == limit.rpm_range and hi == 14000.0
+    depth = limit([0.9 * lo, lo, hi, 1.01 * hi])
+    assert depth[0] == UNTABULATED_DEPTH_M == depth[3] and np.all(depth[1:3] > 1e-4)
+    # a narrow range is tabulated whole at once
+    narrow = replace(setup, limits=replace(setup.limits, spindle_rpm=(9000.0, 12000.0)))
+    limit, speeds = chance_limit_for_plan(post, read_modal_model(d / "post.yaml"), narrow, probability=0.9)
+    assert limit.rpm_range == (9000.0, 12000.0) and not speeds.restricted and speeds.plans == 0
+    assert speeds.note() == "the whole speed range tabulated"
+
+
+def test_a_table_extended_downward_solves_only_its_new_speeds(case, monkeypatch):
+    """``build_table(..., known=)`` copies the lattice points the known table holds and solves the
+    rest: the values equal a table built at once (ZOA: each speed's limit alone), and no known
+    speed is solved again. A table of other nodes is refused."""
+    from planner.learn import tables
+    from planner.learn.predictive import predictive_grid
+
+    _, setup, post = case
+    grid = predictive_grid(post)
+    base = (post.reference, setup.tool, setup.cut, post.coefficients)
+
+    def cuts(lo, hi):
+        r = np.geomspace(lo, hi, 30)
+        return r, np.full(r.size, setup.cut.radial_depth_m), np.ones(r.size, bool)
+
+    top = tables.build_table(*base, *cuts(9000.0, 12000.0), grid, method="zoa", workers=1)
+    solved, job = [], tables._log_limits_job
+    monkeypatch.setattr(tables, "_log_limits_job", lambda j: solved.append(j[5]) or job(j))
+    grown = tables.build_table(*base, *cuts(6000.0, 12000.0), grid, method="zoa", workers=1, known=top)
+    monkeypatch.undo()
+    once = tables.build_table(*base, *cuts(6000.0, 12000.0), grid, method="zoa", workers=1)
+    np.testing.assert_array_equal(grown.lattice[0], once.lattice[0])
+    np.testing.assert_allclose(grown.values[0], once.values[0], rtol=1e-9)
+    new = np.round(np.log(np.concatenate(solved)) / grid.log_speed_step).astype(np.int64)
+    assert not np.isin(new, top.lattice[0]).any()
+    assert np.unique(new).size == once.lattice[0].size - top.lattice[0].size
+    coarse = replace(grid, log_speed_step=2 * grid.log_speed_step)
+    with pytest.raises(ValueError, match="known must be a table of the same lattice step"):
+        tables.build_table(*base, *cuts(6000.0, 12000.0), coarse, method="zoa", workers=1, known=top)

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_learn_plan import case  # noqa: F401  (a fixture: the small test tool's posterior, 9-12 krpm)
 
 from planner.learn.predictive import ProbabilityLobes
 from planner.learn.suggest import suggest_cuts
@@ -111,3 +113,69 @@ def test_boundary_cuts_judged_from_records_teach_less_and_sit_deeper():
     v0 = np.sum(np.var(log_all, axis=0))
     after = sum(wy.mean() * np.sum(wy @ log_all ** 2 / wy.sum() - (wy @ log_all / wy.sum()) ** 2) for wy in (q, 1 - q))
     assert np.isclose(share_d[0], (v0 - after) / v0, rtol=1e-9)
+
+
+def test_mrr_lobes_cover_the_speeds_where_a_cut_could_beat_the_incumbent(case):
+    """``lobes_for_improvement``: the lobes of ``probability_lobes`` (same speeds and values) from
+    the lowest speed whose largest allowed cut could beat the incumbent up; below, no allowed cut
+    does (its expected improvement is 0), so with the same depths considered the suggestions and
+    their scores are those from the whole range."""
+    from planner.learn.predictive import probability_lobes
+    from planner.learn.speed_range import lobes_for_improvement
+    from planner.learn.suggest import allowed_depths, best_proven_mrr
+
+    _, setup, post = case
+    setup = replace(setup, limits=replace(setup.limits, spindle_rpm=(2000.0, 14000.0)))
+    rng = setup.limits.spindle_rpm
+    lobes, speeds = lobes_for_improvement(post, setup, rng, n_rpm=80)
+    whole = probability_lobes(post, setup, rng, n_rpm=80)
+    k = whole.rpm >= speeds.rpm_range[0]
+    assert speeds.restricted and 0 < k.sum() < k.size and speeds.rpm_range == (float(whole.rpm[k][0]), 14000.0)
+    np.testing.assert_array_equal(lobes.rpm, whole.rpm[k])
+    np.testing.assert_allclose(lobes.limits, whole.limits[:, k], rtol=1e-9)
+    least, most, _ = allowed_depths(setup, whole.rpm, post.reference)
+    incumbent = best_proven_mrr(lobes, allowed_depth_m=(least[k], most[k]))
+    assert np.all(most[~k] * whole.rpm[~k] <= incumbent) and np.any(most[k] * whole.rpm[k] > incumbent)
+    scale = setup.cut.radial_depth_m * setup.cut.feed_per_tooth_m * setup.tool.teeth / 60.0
+    assert speeds.below_mrr_m3_s == pytest.approx(np.max(most[~k] * whole.rpm[~k]) * scale)
+    considered = (0.5 * np.min(whole.quantiles[0.95]), 2.0 * np.max(whole.quantiles[0.05]))
+    a = suggest_cuts(whole, 3, allowed_depth_m=(least, most), depth_range_m=considered)
+    b = suggest_cuts(lobes, 3, allowed_depth_m=(least[k], most[k]), depth_range_m=considered)
+    np.testing.assert_array_equal(a[0].spindle_rpm, b[0].spindle_rpm)
+    np.testing.assert_array_equal(a[0].axial_depth_m, b[0].axial_depth_m)
+    np.testing.assert_allclose(a[1], b[1], rtol=1e-9)
+    assert a[2] == pytest.approx(b[2], rel=1e-12) and np.all(b[1] > 0)
+
+
+def test_learn_suggest_reports_the_speeds_of_its_lobes_and_their_time(case, tmp_path, capsys):
+    """``learn --suggest`` (``mrr``, no plot) says which speeds its lobes covered and why, and its
+    ``timings_s`` include the lobes and the suggestion (``total``: the whole command)."""
+    import json
+
+    from oma.modal_io import write_modal_model
+    from planner.cli import main
+    from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
+    from stability.setup_io import write_setup
+
+    _, setup, _ = case
+    problem = tool_problem()
+    setup = replace(setup, limits=replace(setup.limits, spindle_rpm=(2000.0, 14000.0)))
+    rng = np.random.default_rng(5)
+    cuts = random_cuts(replace(problem, setup=setup), 8, rng, immersions=(1.0,), depth_range=(1e-3, 8e-3))
+    cuts = label(cuts, true_limits(problem, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, converged=False),
+                 rng, flip=0.0)
+    lines = ["spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome"]
+    lines += [f"{cuts.spindle_rpm[i]},{cuts.axial_depth_m[i]},{cuts.radial_depth_m[i]},down,"
+              f"{'chatter' if cuts.outcome[i] else 'stable'}" for i in range(cuts.n_cuts)]
+    (tmp_path / "cuts.csv").write_text("\n".join(lines) + "\n")
+    write_setup(setup, tmp_path / "setup.yaml")
+    write_modal_model(problem.prior, tmp_path / "prior.yaml")
+    code = main(["learn", str(tmp_path / "setup.yaml"), "--model", str(tmp_path / "prior.yaml"), "--cuts",
+                 str(tmp_path / "cuts.csv"), "--method", "zoa", "--samples", "200", "--suggest", "2", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and len(out["suggested"]) == 2
+    lo = out["suggested_rpm_range"][0]
+    assert 2000.0 < lo < 14000.0 and all(s["spindle_rpm"] >= lo for s in out["suggested"])
+    assert out["suggested_rpm_range_note"].startswith(f"speeds below {lo:.0f} rpm not tabulated")
+    t = out["timings_s"]
+    assert t["lobes"] > 0 and t["suggest"] >= 0 and t["total"] >= t["learn"] + t["lobes"] + t["suggest"]

@@ -7,6 +7,7 @@ prints.
 
 from __future__ import annotations
 
+import time
 import warnings
 
 from planner.cli_common import EXIT_OK, UsageError, add_json, declare_outputs, emit, finite, save_figure
@@ -134,8 +135,11 @@ def _cmd_learn(args) -> int:
     from .outcomes_io import read_cuts
     from .posterior_io import MAX_WRITTEN_SAMPLES, write_posterior_model
     from .predictive import predict_cuts, probability_lobes
+    from .speed_range import lobes_for_improvement
     from .suggest import MIN_SPEED_GAP, allowed_depths, suggest_cuts
     from .update import learn
+
+    started = time.perf_counter()
 
     # ---- every input read and checked before anything is computed or written
     setup = read_setup(args.setup)
@@ -179,21 +183,43 @@ def _cmd_learn(args) -> int:
     payload["warnings"] = input_warnings + payload["warnings"]
     payload["predictions"] = None
     payload["suggested"] = None
+    timings = payload["timings_s"] = dict(payload["timings_s"], learn=payload["timings_s"]["total"])
+    t0 = time.perf_counter()
     if to_predict is not None:
         p = predict_cuts(post, setup, to_predict, method=args.method)
         payload["predictions"] = [{"index": i, "probability_stable": float(x)} for i, x in enumerate(p)]
-    lobes = None
-    if args.suggest or args.plot:
+        timings["predict"] = time.perf_counter() - t0
+    lobes, speeds = None, None
+    t0 = time.perf_counter()
+    if args.suggest and args.suggest_for == "mrr" and not args.plot:
+        # only the speeds where a test cut could beat the best proven-stable one (docs/learn.md)
+        lobes, speeds = lobes_for_improvement(post, setup, rpm_range, method=args.method)
+    elif args.suggest or args.plot:
         lobes = probability_lobes(post, setup, rpm_range, method=args.method)
+    if lobes is not None:
+        timings["lobes"] = time.perf_counter() - t0
     if args.suggest:
+        t0 = time.perf_counter()
         # the next cuts are assumed judged the way most of these were (marks, or detected from records)
         marked = cuts.outcome >= 0
         detected = 2 * int((cuts.detected & marked).sum()) > int(marked.sum())
-        # only cuts the setup's limits allow (speed, depth, power, torque, force: docs/learn.md)
-        least, most, within = allowed_depths(setup, lobes.rpm, post.reference)
-        sugg, gain, incumbent = suggest_cuts(lobes, args.suggest, criterion=args.suggest_for,
-                                             likelihood=post.likelihood, detected=detected,
-                                             allowed_depth_m=(least, most))
+
+        def pick(lobes):
+            # only cuts the setup's limits allow (speed, depth, power, torque, force: docs/learn.md)
+            least, most, within = allowed_depths(setup, lobes.rpm, post.reference)
+            return within, *suggest_cuts(lobes, args.suggest, criterion=args.suggest_for, likelihood=post.likelihood,
+                                         detected=detected, allowed_depth_m=(least, most))
+
+        within, sugg, gain, incumbent = pick(lobes)
+        if speeds is not None and speeds.restricted and (sugg.n_cuts < args.suggest
+                                                          or not all(g > 0 for g in gain)):
+            # fewer cuts with an expected improvement than asked: the whole range adds some at its lowest speeds
+            lobes, speeds = probability_lobes(post, setup, rpm_range, method=args.method), None
+            within, sugg, gain, incumbent = pick(lobes)
+        if speeds is not None:
+            payload["suggested_rpm_range"] = list(speeds.rpm_range)
+            payload["suggested_rpm_range_note"] = speeds.note()
+        timings["suggest"] = time.perf_counter() - t0
         payload["suggested_outcomes"] = "detected" if detected else "marked"
         payload["suggested_within"] = list(within)
         fz = setup.cut.feed_per_tooth_m
@@ -215,6 +241,7 @@ def _cmd_learn(args) -> int:
         save_figure(fig, args.plot)
     if args.output:
         payload["posterior"] = str(write_posterior_model(post, args.output))
+    timings["total"] = time.perf_counter() - started
     emit(args, payload, lambda d: _human(d, result))
     return EXIT_OK
 
@@ -266,21 +293,36 @@ def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float) -> None:
 
 def chance_constraint(model_path, setup, *, probability: float = 0.95):
     """For ``plan``: ``(stability_limit, learned)`` when the model carries ``x_posterior`` (the
-    depth stable with ``probability``, and what was learned, for the report), else ``(None, None)``."""
+    depth stable with ``probability``, and what was learned, for the report), else ``(None, None)``.
+
+    The limit is tabulated only over the speeds where a cut could beat the best plan
+    (:func:`planner.learn.speed_range.chance_limit_for_plan`, planning on the part of the range
+    with the model of ``model_path``, the structure ``plan`` reads); ``learned`` says which
+    (``rpm_range``, ``rpm_range_note``) and how long the table, its check and those plans took
+    (``timings_s``)."""
+    from oma.errors import SetupError
+    from oma.modal_io import read_modal_model
+    from planner.plan_results import plan_bounds
+
     from .posterior_io import read_posterior
-    from .predictive import ChanceLimit
+    from .speed_range import chance_limit_for_plan
 
     if not 0 < probability < 1:
         raise UsageError("--probability", "a probability in (0, 1)", repr(probability))
     post = read_posterior(model_path)
     if post is None or setup.limits.spindle_rpm is None:
         return None, None
-    limit = ChanceLimit(post, setup, setup.limits.spindle_rpm, probability=probability)
+    try:
+        plan_bounds(setup)
+    except SetupError:  # plan raises it, naming the setup file
+        return None, None
+    limit, speeds = chance_limit_for_plan(post, read_modal_model(model_path), setup, probability=probability)
     learned = {"probability": float(probability), "samples": int(post.samples.shape[0]),
                "method": post.method, "cause": post.cause(), "parameters": post.parameters(),
                "table_error": limit.table_error, "boundary_width": limit.boundary_width,
                "note": f"stability: P(stable) >= {probability:g} under the posterior learned from test cuts, "
-                       "the forward model's error included (the chance constraint replaces the stability margin)"}
+                       "the forward model's error included (the chance constraint replaces the stability margin)",
+               **speeds.to_dict()}
     return limit, learned
 
 

@@ -17,6 +17,7 @@ benchmark checks against the true limit), is :meth:`ProbabilityLobes.limit_quant
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -29,7 +30,11 @@ from .posterior import Posterior
 from .tables import FINE_NODES, Grid, LimitTable, build_table, direct_log_limits
 
 __all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "lobes_from_table",
-           "ChanceLimit", "depth_at_probability"]
+           "ChanceLimit", "depth_at_probability", "UNTABULATED_DEPTH_M"]
+
+#: The chance depth outside a :class:`ChanceLimit`'s speed range: none certified (1 nm rather
+#: than 0, which ``plan``'s pocket fit would divide by).
+UNTABULATED_DEPTH_M = 1e-9
 
 
 def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
@@ -44,9 +49,9 @@ def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
 
 
 def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: str | None,
-           grid: Grid | None) -> LimitTable:
+           grid: Grid | None, known: LimitTable | None = None) -> LimitTable:
     return build_table(posterior.reference, setup.tool, setup.cut, posterior.coefficients, rpm, radial_depth_m,
-                       down, grid or predictive_grid(posterior), method=method or posterior.method)
+                       down, grid or predictive_grid(posterior), method=method or posterior.method, known=known)
 
 
 def predict_cuts(posterior: Posterior, setup, cuts: CutTable, *, method: str | None = None,
@@ -150,7 +155,10 @@ class ChanceLimit:
     """The depth (m) below which the cut of ``setup`` is stable with ``probability``, at any speed
     in ``rpm_range``: where the posterior predictive P(stable) (module notes; what ``--predict``
     reports) falls to ``probability`` (the chance constraint of ``plan``). The limit table is
-    built once over the range; each call interpolates.
+    built once over the range; each call interpolates. Outside the range the depth is
+    ``UNTABULATED_DEPTH_M`` (1 nm): no depth is certified where no limit was computed
+    (:mod:`.speed_range` tabulates only the speeds where a cut could beat the best plan, and
+    ``plan`` over the setup's whole range finds no cut at the others).
 
     The table is checked where it is used: ``check`` samples are solved directly at
     ``check_speeds`` speeds over the range, and the soft boundary is widened by the larger of
@@ -168,10 +176,24 @@ class ChanceLimit:
         In (0, 1), e.g. 0.95.
     check, check_speeds : int
         Samples and speeds of the table check (0 samples: no check, the training cuts' error).
+    known : ChanceLimit, optional
+        A chance limit of the same posterior, setup, method and ``max_samples`` over part of the
+        range: its table's values are reused, only the speeds it lacks are solved (the range
+        extended downward by :func:`planner.learn.speed_range.chance_limit_for_plan`). The table
+        check is made again over the new range.
+
+    Attributes
+    ----------
+    table_error, boundary_width : float
+        The check's RMS log error and the soft boundary's width (the larger error in quadrature
+        with the boundary scale).
+    timings_s : dict
+        Wall time of the table (``table``: the new speeds only) and of its check (``check``), s.
     """
 
     def __init__(self, posterior: Posterior, setup, rpm_range, *, probability: float = 0.95,
-                 method: str | None = None, max_samples: int = 400, check: int = 8, check_speeds: int = 12):
+                 method: str | None = None, max_samples: int = 400, check: int = 8, check_speeds: int = 12,
+                 known: "ChanceLimit | None" = None):
         if not 0 < probability < 1:
             raise ValueError(f"probability must be in (0, 1), found {probability}")
         self.probability = float(probability)
@@ -182,14 +204,18 @@ class ChanceLimit:
         step = predictive_grid(self.posterior).log_speed_step
         n_rpm = int(np.ceil(np.log(self.rpm_range[1] / self.rpm_range[0]) / step)) + 2
         rpm = np.geomspace(*self.rpm_range, n_rpm)
+        t0 = time.perf_counter()
         self._table = _table(self.posterior, setup, rpm, np.full(rpm.size, setup.cut.radial_depth_m),
-                             np.full(rpm.size, setup.cut.milling == "down"), method=self._method, grid=None)
+                             np.full(rpm.size, setup.cut.milling == "down"), method=self._method, grid=None,
+                             known=None if known is None else known._table)
+        t1 = time.perf_counter()
         self.table_error = 0.0
         if check > 0:
             u = self._draw(check, seed=0)
             r = np.geomspace(*self.rpm_range, int(check_speeds))
             err = self.posterior.log_limits(self._at(r), samples=u) - self._direct(r, u)
             self.table_error = float(np.sqrt(np.mean(err ** 2)))
+        self.timings_s = {"table": t1 - t0, "check": time.perf_counter() - t1}
         lk = self.posterior.likelihood
         self.boundary_width = float(lk.scale(max(lk.model_error, self.table_error)))
 
@@ -218,7 +244,12 @@ class ChanceLimit:
         return np.exp(self.posterior.log_limits(self._at(rpm)))
 
     def __call__(self, rpm) -> np.ndarray:
-        return depth_at_probability(np.log(self.samples(rpm)), self.probability, self.boundary_width)
+        """The chance depth (m) at the speeds ``rpm``; ``UNTABULATED_DEPTH_M`` outside
+        :attr:`rpm_range` (class notes)."""
+        rpm = np.atleast_1d(np.asarray(rpm, dtype=float))
+        depth = depth_at_probability(np.log(self.samples(rpm)), self.probability, self.boundary_width)
+        lo, hi = self.rpm_range
+        return np.where((rpm >= lo * (1 - 1e-12)) & (rpm <= hi * (1 + 1e-12)), depth, UNTABULATED_DEPTH_M)
 
     def verify(self, rpm: float, axial_depth_m: float, *, samples: int = 64) -> dict:
         """The planned cut checked without any table: ``samples`` posterior samples solved directly

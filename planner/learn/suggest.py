@@ -41,7 +41,7 @@ from .likelihood import Likelihood
 from .outcomes_io import CutTable
 from .predictive import ProbabilityLobes
 
-__all__ = ["suggest_cuts", "allowed_depths", "CRITERIA", "MIN_SPEED_GAP"]
+__all__ = ["suggest_cuts", "best_proven_mrr", "allowed_depths", "CRITERIA", "MIN_SPEED_GAP"]
 
 CRITERIA = ("mrr", "boundary")
 #: Least relative gap in speed between two suggested cuts.
@@ -89,6 +89,32 @@ def suggest_cuts(lobes: ProbabilityLobes, n: int, *, criterion: str = "mrr", lik
         raise ValueError(f"n must be >= 1, found {n}")
     if criterion not in CRITERIA:
         raise ValueError(f"criterion must be one of {', '.join(CRITERIA)}, found {criterion!r}")
+    cand = _candidates(lobes, depth_range_m, allowed_depth_m, n_depth, confidence)
+    if cand is None:
+        return _no_cuts(lobes), np.zeros(0), 0.0
+    depth, p, mrr, allowed, incumbent = cand
+    if criterion == "mrr":
+        ei = np.where(allowed[None, :], p * np.maximum(0.0, mrr - incumbent), -1.0)
+        picks, scores = _greedy_improvement(ei, lobes.rpm, n, min_speed_gap)
+    else:
+        picks, scores = _greedy_boundary(lobes, depth, allowed, n, likelihood or Likelihood(), min_speed_gap,
+                                         detected)
+    rpm = np.array([lobes.rpm[j] for _, j in picks], dtype=float)
+    ap = np.array([depth[i, j] for i, j in picks], dtype=float)
+    return _cuts(lobes, rpm, ap), np.asarray(scores, dtype=float), incumbent
+
+
+def best_proven_mrr(lobes: ProbabilityLobes, *, depth_range_m=None, allowed_depth_m=None, n_depth: int = 60,
+                    confidence: float = 0.95) -> float:
+    """The incumbent of :func:`suggest_cuts` (same options): the best allowed ``ap * rpm`` (m rpm)
+    with P(stable) >= ``confidence`` among its candidates (0 when none)."""
+    cand = _candidates(lobes, depth_range_m, allowed_depth_m, n_depth, confidence)
+    return 0.0 if cand is None else cand[-1]
+
+
+def _candidates(lobes: ProbabilityLobes, depth_range_m, allowed_depth_m, n_depth: int, confidence: float):
+    """The candidate depths (n_depth, n_rpm), their P(stable) and ``ap * rpm``, the speeds allowed
+    (n_rpm,) and the incumbent (:func:`suggest_cuts`); None when no speed is allowed."""
     n_rpm = lobes.rpm.size
     lo_q = lobes.quantiles.get(0.95, np.quantile(lobes.limits, 0.05, axis=0))
     hi_q = lobes.quantiles.get(0.05, np.quantile(lobes.limits, 0.95, axis=0))
@@ -100,7 +126,7 @@ def suggest_cuts(lobes: ProbabilityLobes, n: int, *, criterion: str = "mrr", lik
         least, most = (np.broadcast_to(np.asarray(v, dtype=float), (n_rpm,)) for v in allowed_depth_m)
     allowed = most >= least
     if not allowed.any():
-        return _no_cuts(lobes), np.zeros(0), 0.0
+        return None
     # the grid spans what is both considered and allowed (when nothing is, the allowed depth
     # nearest to what is considered), then each speed's column is clipped to its allowed depths
     a_lo, a_hi = float(np.min(least[allowed])), float(np.max(most[allowed]))
@@ -111,15 +137,7 @@ def suggest_cuts(lobes: ProbabilityLobes, n: int, *, criterion: str = "mrr", lik
     mrr = depth * lobes.rpm[None, :]
     safe = (p >= confidence) & allowed[None, :]
     incumbent = float(mrr[safe].max()) if safe.any() else 0.0
-    if criterion == "mrr":
-        ei = np.where(allowed[None, :], p * np.maximum(0.0, mrr - incumbent), -1.0)
-        picks, scores = _greedy_improvement(ei, lobes.rpm, n, min_speed_gap)
-    else:
-        picks, scores = _greedy_boundary(lobes, depth, allowed, n, likelihood or Likelihood(), min_speed_gap,
-                                         detected)
-    rpm = np.array([lobes.rpm[j] for _, j in picks], dtype=float)
-    ap = np.array([depth[i, j] for i, j in picks], dtype=float)
-    return _cuts(lobes, rpm, ap), np.asarray(scores, dtype=float), incumbent
+    return depth, p, mrr, allowed, incumbent
 
 
 def _cuts(lobes: ProbabilityLobes, rpm: np.ndarray, ap: np.ndarray) -> CutTable:

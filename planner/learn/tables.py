@@ -267,7 +267,7 @@ def direct_log_limits(model: ModalModel, tool: Tool, base_cut: Cut, coefficients
 
 def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients,
                 rpm, radial_depth_m, down, grid: Grid, *, method: str = "sdm",
-                workers: int | None = None) -> LimitTable:
+                workers: int | None = None, known: LimitTable | None = None) -> LimitTable:
     """The :class:`LimitTable` of cuts given by speed, radial depth and milling.
 
     Per engagement, the log-speed lattice holds every lattice point of ``log n_j - log_f_range``
@@ -289,7 +289,14 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     workers : int, optional
         Processes filling the table; by default :func:`planner.workers.default_workers`, or this process alone for
         tables of fewer than ``PARALLEL_MIN_LIMITS`` limits. The values do not depend on it.
+    known : LimitTable, optional
+        A table already built from the same model, coefficients and cutting frame on the same
+        lattice step, nodes and SDM resolution (e.g. over a narrower speed range): the lattice
+        points it holds for an engagement (same radial depth, milling and method) are copied from
+        it, only the others are solved (a range extended downward costs only its new speeds).
     """
+    if known is not None and not _same_nodes(known.grid, grid):
+        raise ValueError("known must be a table of the same lattice step, damping and ratio nodes and SDM steps")
     rpm = np.asarray(rpm, dtype=float).ravel()
     ae = np.asarray(radial_depth_m, dtype=float).ravel()
     down = np.asarray(down, dtype=bool).ravel()
@@ -305,25 +312,51 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
         lattices.append(np.unique(np.concatenate([np.arange(l0, h0 + 1) for l0, h0 in zip(lo, hi)]).astype(np.int64)))
         cuts.append(replace(base_cut, radial_depth_m=float(a), milling="down" if d else "up"))
         hows.append(method_for(tool, float(a), method))
+    # values already in `known`, and the lattice points left to solve, per engagement
+    tables, todo = [], []
+    for lat, a, d, how in zip(lattices, uniq[:, 0], uniq[:, 1], hows):
+        val = np.full((lat.size, grid.log_zeta.size, grid.log_ratio.size), np.nan)
+        have = np.zeros(lat.size, dtype=bool)
+        kg = None if known is None else _engagement_of(known, float(a), bool(d), how)
+        if kg is not None:
+            have = np.isin(lat, known.lattice[kg])
+            val[have] = known.values[kg][np.searchsorted(known.lattice[kg], lat[have])]
+        tables.append(val)
+        todo.append(np.flatnonzero(~have))
     # one job per (engagement, damping node, ratio node): independent SDM searches over the lattice
-    jobs = [(model, tool, cuts[g], coefficients, (0.0, 0.0, float(lz), 0.0, float(lr)), np.exp(lattices[g] * h), hows[g],
-             grid.sdm_steps) for g in range(len(cuts)) for lz in grid.log_zeta for lr in grid.log_ratio]
-    work = sum(lattices[g].size for g in range(len(cuts))) * grid.log_zeta.size * grid.log_ratio.size
+    jobs = [(model, tool, cuts[g], coefficients, (0.0, 0.0, float(lz), 0.0, float(lr)),
+             np.exp(lattices[g][todo[g]] * h), hows[g], grid.sdm_steps)
+            for g in range(len(cuts)) if todo[g].size for lz in grid.log_zeta for lr in grid.log_ratio]
+    work = sum(t.size for t in todo) * grid.log_zeta.size * grid.log_ratio.size
     if workers is None:
         workers = default_workers() if work >= PARALLEL_MIN_LIMITS else 1
     results = iter(process_map(_log_limits_job, jobs, workers=workers))
-    tables = []
-    for lat in lattices:
-        val = np.empty((lat.size, grid.log_zeta.size, grid.log_ratio.size))
-        for iz in range(grid.log_zeta.size):
-            for ir in range(grid.log_ratio.size):
-                val[:, iz, ir] = next(results)
+    for val, rows in zip(tables, todo):
+        if rows.size:
+            for iz in range(grid.log_zeta.size):
+                for ir in range(grid.log_ratio.size):
+                    val[rows, iz, ir] = next(results)
         val.setflags(write=False)
-        tables.append(val)
     engagements = [(float(a), bool(d)) for a, d in uniq]
     methods = tuple(method_for(tool, a, method) for a in ae)
     return LimitTable(grid=grid, engagements=tuple(engagements), lattice=tuple(lattices), values=tuple(tables),
                       group=group, rpm=rpm, methods=methods)
+
+
+def _same_nodes(a: Grid, b: Grid) -> bool:
+    """Whether two grids give a lattice point the same value (the frequency range only says which
+    points a table holds)."""
+    return (a.log_speed_step == b.log_speed_step and tuple(a.sdm_steps) == tuple(b.sdm_steps)
+            and np.array_equal(a.log_zeta, b.log_zeta) and np.array_equal(a.log_ratio, b.log_ratio))
+
+
+def _engagement_of(table: LimitTable, radial_depth_m: float, down: bool, method: str) -> int | None:
+    """The index of ``table``'s engagement with this radial depth, milling and method, or None."""
+    for g, (a, d) in enumerate(table.engagements):
+        cut = np.flatnonzero(table.group == g)
+        if a == radial_depth_m and d == down and cut.size and table.methods[cut[0]] == method:
+            return g
+    return None
 
 
 def mode_shares(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients, rpm, radial_depth_m,
