@@ -25,7 +25,8 @@ import math
 
 import numpy as np
 
-from .zoa import _BOUND_FACTOR as _BOUND, _ONSET_ITERS, _PRESELECT_FACTOR as _PRESELECT, MODE_LINES, MODE_STEPS
+from ._zoa_curves import MODE_LINES, MODE_STEPS
+from ._zoa_exact import _BOUND_FACTOR as _BOUND, _ONSET_ITERS, _PRESELECT_FACTOR as _PRESELECT
 
 __all__ = ["scan_kernel"]
 
