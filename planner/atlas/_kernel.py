@@ -42,13 +42,14 @@ import math
 
 import numpy as np
 
+from stability._zoa_curves import MODE_LINES, MODE_STEPS
+
 __all__ = ["atlas_kernel", "MODE_STEPS", "MODE_LINES"]
 
-#: Grid lines per ``zeta fn`` at a mode's peak (with the curvature term the envelope's smallest
-#: value is within 2e-3 of the exact one, measured; 6 would cost ~15 % more; docs/atlas.md).
-MODE_STEPS = 4.0
-#: At most this many lines on each side of a mode (a damping ratio of 1e-4 needs ~28 at 500 lines).
-MODE_LINES = 48
+# The lines around each mode are the library's (stability.zoa's grid, :mod:`stability._zoa_curves`):
+# MODE_STEPS lines per ``zeta fn`` at a mode's peak (with the curvature term the envelope's smallest
+# value is within 2e-3 of the exact one, measured; 6 would cost ~15 % more; docs/atlas.md), at most
+# MODE_LINES on each side of a mode (a damping ratio of 1e-4 needs ~28 at 500 lines).
 #: The best speed is chosen on the interpolated envelope, then solved exactly together with up to
 #: ``RANK_MORE`` other speeds whose interpolated rate is within ``RANK_TOL`` of the best and where
 #: stability may bind (the interpolation error of the envelope: measured up to 3.4 %, on a lobe's
@@ -65,45 +66,7 @@ _ONSET_STEPS = 12
 _PRESELECT = 1.25
 
 #: The compiled helpers of :mod:`stability.zoa_batch`, bound by :func:`atlas_kernel` before compiling.
-_k_lam = _k_depth_phase = _k_branch = _k_solve = None
-
-
-def _a_grid(f_lo, f_hi, n_log, fn, zeta, stiff, freq):
-    """Write the chatter-frequency grid (increasing, distinct) into ``freq``; return its length.
-
-    ``n_log`` log-spaced lines ``f_lo .. f_hi`` (``stability.zoa.default_chatter_frequencies``) and,
-    for every mode with a finite stiffness, ``fn (1 + zeta sinh(j / MODE_STEPS))`` for
-    ``|j| <= MODE_LINES`` while the local relative step ``zeta cosh(u) / MODE_STEPS`` is finer than
-    the log grid's.
-    """
-    a = math.log(f_lo)
-    step = (math.log(f_hi) - a) / (n_log - 1)
-    for i in range(n_log):
-        freq[i] = math.exp(i * step + a)
-    freq[0], freq[n_log - 1] = f_lo, f_hi
-    n = n_log
-    h = 1.0 / MODE_STEPS
-    for r in range(fn.shape[0]):
-        if not stiff[r] < np.inf:
-            continue
-        ratio = step / (zeta[r] * h)  # the log grid's step over the finest mode line spacing
-        if ratio <= 1.0:
-            continue
-        m = min(MODE_LINES, int(math.acosh(ratio) / h))
-        for j in range(-m, m + 1):
-            f = fn[r] * (1.0 + zeta[r] * math.sinh(j * h))
-            if f_lo < f < f_hi:
-                freq[n] = f
-                n += 1
-    if n > n_log:
-        freq[:n] = np.sort(freq[:n])
-        m = 1
-        for i in range(1, n):
-            if freq[i] > freq[m - 1] * (1.0 + 1e-12):
-                freq[m] = freq[i]
-                m += 1
-        n = m
-    return n
+_k_lam = _k_depth_phase = _k_branch = _k_solve = _k_grid = None
 
 
 def _a_sample(n, freq, fn, zeta, stiff, w, wres, lam, dep, pha, gap):
@@ -312,7 +275,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
     keep_env = out_env.shape[0] > 0
     for g in range(fn.shape[0]):
         fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
-        n = _a_grid(f_lo[g], f_hi[g], n_freq, fn_g, zeta_g, stiff_g, freq)
+        n = _k_grid(f_lo[g], f_hi[g], n_freq, fn_g, zeta_g, stiff_g, freq)
         _a_sample(n, freq, fn_g, zeta_g, stiff_g, w_g, wres_g, lam, dep, pha, gap)
         _a_segments(n, freq, lam, dep, pha, seg, has)
         # ---- the envelope on the speed grid, as the inverse depth (the largest 2 Re lambda)
@@ -435,7 +398,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
 
 
 _COMPILED: list = []
-_NAMES = ("_a_grid", "_a_sample", "_a_segments", "_a_depth", "_a_onset", "_a_limit", "_a_scan")
+_NAMES = ("_a_sample", "_a_segments", "_a_depth", "_a_onset", "_a_limit", "_a_scan")
 _PY = {name: globals()[name] for name in _NAMES}
 
 
@@ -449,7 +412,7 @@ def atlas_kernel():
 
         zoa_batch.scan_kernel()  # binds the compiled helpers in zoa_batch's namespace
         g = globals()
-        for name in ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve"):
+        for name in ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid"):
             g[name] = getattr(zoa_batch, name)
         for name in _NAMES:
             g[name] = numba.njit(cache=True)(_PY[name])
