@@ -445,14 +445,10 @@ def _k_onset(b, f0, f1, g0, g1, p_fin, fn, zeta, stiff, w, wres):
     return f_lin, p_on, f_on, g0 + t * (g1 - g0)
 
 
-def _k_branches(n, freq, fn, zeta, stiff, w, wres, dep, pha, gap, valid, ons_at, ons_f, ons_p, ons_x, ons_g):
-    """Sample the two eigenvalue branches of one structure group at ``freq[:n]`` (:func:`_k_grid`),
-    continued in frequency, into the work arrays: limit depth ``dep`` and phase ``pha`` (in turns)
-    per branch (``inf``/NaN where the real part is not positive), the branch gap ``gap``,
-    ``valid`` (int8: 1 the interval holds a lobe segment between finite depths, 2 one from the onset
-    of a lobe inside it, one end's depth infinite, 0 none) and, for 2, the onset (:func:`_k_onset`):
-    interpolated ``ons_f`` with its phase ``ons_p``, exact ``ons_x`` with the gap ``ons_g`` there;
-    ``ons_at`` lists the onset intervals as ``b (n - 1) + i``, then -1."""
+def _k_sample(n, freq, fn, zeta, stiff, w, wres, lam, dep, pha, gap):
+    """The two continued eigenvalue branches at ``freq[:n]``: ``lam`` (2, n), limit depth ``dep``
+    and phase ``pha`` (in turns) per branch (``inf``/NaN where the real part is not positive), and
+    the continued gap ``gap`` = ``lambda_0 - lambda_1`` (also the atlas's, planner.atlas._kernel)."""
     swapped = False
     prev = 0j
     for i in range(n):
@@ -466,6 +462,7 @@ def _k_branches(n, freq, fn, zeta, stiff, w, wres, dep, pha, gap, valid, ons_at,
         if swapped:
             l1, l2 = l2, l1
         gap[i] = l1 - l2
+        lam[0, i], lam[1, i] = l1, l2
         # the phase is used only where the depth is finite (atan2 is a fifth of the cost)
         dep[0, i], pha[0, i] = np.inf, np.nan
         dep[1, i], pha[1, i] = np.inf, np.nan
@@ -475,6 +472,16 @@ def _k_branches(n, freq, fn, zeta, stiff, w, wres, dep, pha, gap, valid, ons_at,
         if l2.real > 0.0:
             d, p = _k_depth_phase(l2)
             dep[1, i], pha[1, i] = d, p / _TWO_PI
+
+
+def _k_branches(n, freq, fn, zeta, stiff, w, wres, lam, dep, pha, gap, valid, ons_at, ons_f, ons_p, ons_x, ons_g):
+    """Sample the two eigenvalue branches of one structure group at ``freq[:n]`` (:func:`_k_grid`),
+    continued in frequency (:func:`_k_sample`: ``lam``, ``dep``, ``pha``, ``gap``), and mark
+    ``valid`` (int8: 1 the interval holds a lobe segment between finite depths, 2 one from the onset
+    of a lobe inside it, one end's depth infinite, 0 none) and, for 2, the onset (:func:`_k_onset`):
+    interpolated ``ons_f`` with its phase ``ons_p``, exact ``ons_x`` with the gap ``ons_g`` there;
+    ``ons_at`` lists the onset intervals as ``b (n - 1) + i``, then -1."""
+    _k_sample(n, freq, fn, zeta, stiff, w, wres, lam, dep, pha, gap)
     n_on = 0
     for b in range(2):
         for i in range(n - 1):
@@ -502,6 +509,7 @@ def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q
         fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
         n = _k_grid(f_lo[g], f_hi[g], n_freq, fn_g, zeta_g, stiff_g, grid)
         freq = grid[:n].copy()
+        lam = np.empty((2, n), dtype=np.complex128)
         dep = np.empty((2, n))
         pha = np.empty((2, n))
         gap = np.empty(n, dtype=np.complex128)
@@ -512,7 +520,7 @@ def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q
         ons_x = np.empty((2, n - 1))
         ons_g = np.empty((2, n - 1), dtype=np.complex128)
         ons = (ons_at, ons_f, ons_p, ons_x, ons_g)
-        _k_branches(n, freq, fn_g, zeta_g, stiff_g, w_g, wres_g, dep, pha, gap, valid, *ons)
+        _k_branches(n, freq, fn_g, zeta_g, stiff_g, w_g, wres_g, lam, dep, pha, gap, valid, *ons)
         for q in range(q_ptr[g], q_ptr[g + 1]):
             d, fc = _k_limit(q_rpm[q], teeth, freq, dep, pha, gap, valid, *ons, fn_g, zeta_g, stiff_g, w_g, wres_g)
             out_depth[q], out_freq[q] = d, fc
@@ -522,8 +530,8 @@ def _k_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, q_ptr, q_rpm, q
                                          *ons, fn_g, zeta_g, stiff_g, w_g, wres_g)
 
 
-_KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid", "_k_onset", "_k_branches",
-                 "_k_add", "_k_limit", "_k_crossing", "_k_unstable_intervals", "_k_nearest", "_k_scan")
+_KERNEL_NAMES = ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid", "_k_onset", "_k_sample",
+                 "_k_branches", "_k_add", "_k_limit", "_k_crossing", "_k_unstable_intervals", "_k_nearest", "_k_scan")
 _PY_KERNELS = {name: globals()[name] for name in _KERNEL_NAMES}
 _COMPILED: list = []
 

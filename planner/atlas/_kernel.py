@@ -66,32 +66,7 @@ _ONSET_STEPS = 12
 _PRESELECT = 1.25
 
 #: The compiled helpers of :mod:`stability.zoa_batch`, bound by :func:`atlas_kernel` before compiling.
-_k_lam = _k_depth_phase = _k_branch = _k_solve = _k_grid = None
-
-
-def _a_sample(n, freq, fn, zeta, stiff, w, wres, lam, dep, pha, gap):
-    """The two continued eigenvalue branches at ``freq[:n]``: ``lam`` (2, n), critical depth ``dep``
-    (``inf`` where ``Re lambda <= 0``), phase ``pha`` in turns (NaN there), the continued gap
-    ``lambda_0 - lambda_1``. Continuation as ``stability.zoa``: the sorted gap turning by more than
-    90 degrees between neighbouring lines means that the sorted order has swapped."""
-    swapped = False
-    prev = 0j
-    for i in range(n):
-        l1, l2 = _k_lam(freq[i], fn, zeta, stiff, w, wres)
-        d12 = l1 - l2
-        if i > 0 and (prev.conjugate() * d12).real < 0.0:
-            swapped = not swapped
-        prev = d12
-        if swapped:
-            l1, l2 = l2, l1
-        gap[i] = l1 - l2
-        lam[0, i], lam[1, i] = l1, l2
-        for b in range(2):
-            lb = lam[b, i]
-            dep[b, i], pha[b, i] = np.inf, np.nan
-            if lb.real > 0.0:
-                d, p = _k_depth_phase(lb)
-                dep[b, i], pha[b, i] = d, p / (2.0 * math.pi)
+_k_lam = _k_depth_phase = _k_branch = _k_solve = _k_grid = _k_sample = None
 
 
 def _a_segments(n, freq, lam, dep, pha, seg, has):
@@ -276,7 +251,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
     for g in range(fn.shape[0]):
         fn_g, zeta_g, stiff_g, w_g, wres_g = fn[g], zeta[g], stiff[g], w[g], wres[g]
         n = _k_grid(f_lo[g], f_hi[g], n_freq, fn_g, zeta_g, stiff_g, freq)
-        _a_sample(n, freq, fn_g, zeta_g, stiff_g, w_g, wres_g, lam, dep, pha, gap)
+        _k_sample(n, freq, fn_g, zeta_g, stiff_g, w_g, wres_g, lam, dep, pha, gap)
         _a_segments(n, freq, lam, dep, pha, seg, has)
         # ---- the envelope on the speed grid, as the inverse depth (the largest 2 Re lambda)
         for j in range(n_rpm):
@@ -398,7 +373,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
 
 
 _COMPILED: list = []
-_NAMES = ("_a_sample", "_a_segments", "_a_depth", "_a_onset", "_a_limit", "_a_scan")
+_NAMES = ("_a_segments", "_a_depth", "_a_onset", "_a_limit", "_a_scan")
 _PY = {name: globals()[name] for name in _NAMES}
 
 
@@ -412,7 +387,7 @@ def atlas_kernel():
 
         zoa_batch.scan_kernel()  # binds the compiled helpers in zoa_batch's namespace
         g = globals()
-        for name in ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid"):
+        for name in ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid", "_k_sample"):
             g[name] = getattr(zoa_batch, name)
         for name in _NAMES:
             g[name] = numba.njit(cache=True)(_PY[name])
