@@ -47,24 +47,28 @@ COEF = CuttingCoefficients(KT, KR)
 B_NN = -TEETH * KR / 4
 
 
-def g1(f):
+def g1(f, zeta=ZETA):
     r = np.asarray(f) / FN
-    return 1 / (STIFF * (1 - r**2 + 2j * ZETA * r))
+    return 1 / (STIFF * (1 - r**2 + 2j * zeta * r))
 
 
-def closed_form_limit(rpm):
-    """Smallest depth over all lobes at this speed, from 1 = a (1 - e^{-iwT}) B_nn G(w)."""
+def closed_form_limit(rpm, zeta=ZETA, *, resonance_lines: bool = False):
+    """Smallest depth over all lobes at this speed, from 1 = a (1 - e^{-iwT}) B_nn G(w), searched on
+    a grid 0.0092 Hz apart; ``resonance_lines`` adds lines 1/1000 of ``zeta fn`` apart near the
+    resonance (where the lobes of a lightly damped mode turn: tests/test_zoa_onset.py)."""
     period = 60.0 / (TEETH * rpm)
 
     def im(f):
-        return np.imag((1 - np.exp(-2j * np.pi * f * period)) * g1(f))
+        return np.imag((1 - np.exp(-2j * np.pi * f * period)) * g1(f, zeta))
 
     f = np.linspace(FN, 3 * FN, 200_001)
+    if resonance_lines:
+        f = np.union1d(f, FN * (1 + zeta * np.linspace(0.0, 40.0, 40_001)))
     v = im(f)
     best = np.inf
     for i in np.flatnonzero(np.sign(v[:-1]) != np.sign(v[1:])):
         fr = brentq(im, f[i], f[i + 1], xtol=1e-13, rtol=1e-15)
-        val = B_NN * np.real((1 - np.exp(-2j * np.pi * fr * period)) * g1(fr))
+        val = B_NN * np.real((1 - np.exp(-2j * np.pi * fr * period)) * g1(fr, zeta))
         if val > 0:
             best = min(best, 1 / val)
     return best

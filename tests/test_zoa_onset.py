@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
 
 from oma.modal import ModalModel
 from oma.modal_io import read_modal_model
@@ -28,6 +27,7 @@ from stability.oriented import average_directional_matrix
 from stability.setup_io import read_setup
 
 sys.path.insert(0, str(Path(__file__).parent))
+import test_zoa  # noqa: E402
 from test_zoa import (  # noqa: E402
     B_NN, COEF, EXAMPLE, FN, REFERENCE_RTOL, STIFF, TEETH, TOOL, reference_limit, slot_cut)
 
@@ -44,26 +44,8 @@ def one_dof(zeta):
 
 
 def closed_form_limit(rpm, zeta):
-    """Smallest depth over all lobes at this speed, from 1 = a (1 - e^{-iwT}) B_nn G(w), searched
-    on a grid 0.0092 Hz apart and 1/1000 of ``zeta fn`` near the resonance (the lobes turn there)."""
-    period = 60.0 / (TEETH * rpm)
-
-    def g(f):
-        r = np.asarray(f) / FN
-        return 1 / (STIFF * (1 - r**2 + 2j * zeta * r))
-
-    def im(f):
-        return np.imag((1 - np.exp(-2j * np.pi * f * period)) * g(f))
-
-    f = np.union1d(np.linspace(FN, 3 * FN, 200_001), FN * (1 + zeta * np.linspace(0.0, 40.0, 40_001)))
-    v = im(f)
-    best = np.inf
-    for i in np.flatnonzero(np.sign(v[:-1]) != np.sign(v[1:])):
-        fr = brentq(im, f[i], f[i + 1], xtol=1e-13, rtol=1e-15)
-        val = B_NN * np.real((1 - np.exp(-2j * np.pi * fr * period)) * g(fr))
-        if val > 0:
-            best = min(best, 1 / val)
-    return best
+    """test_zoa's closed form at this damping, with lines near the resonance (the lobes turn there)."""
+    return test_zoa.closed_form_limit(rpm, zeta, resonance_lines=True)
 
 
 def onset_flank(zeta, k_max=12, rpm_range=(2000.0, 60000.0)):
