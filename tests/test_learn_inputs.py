@@ -23,9 +23,9 @@ from oma._fields import FileWarning
 from planner.cli import main
 from planner.learn.outcomes_io import CutsError, read_cuts
 from planner.learn.posterior_io import read_posterior
-from planner.learn.predictive import ProbabilityLobes
 from planner.learn.suggest import suggest_cuts
 from stability.setup_io import read_setup
+from test_learn_suggest import _lobes  # the lobe-peak limits of the suggest tests
 
 # The bundled KR500 acetal example's setup and tool modes (examples/kr500_acetal), written out so
 # that the tests do not depend on the example's files: 25.4 mm tool, depth 0.5-30 mm, 8 kW.
@@ -225,16 +225,6 @@ def test_an_outcome_word_in_a_table_to_predict_is_checked(setup, tmp_path):
 
 
 # ------------------------------------------------------------------------ 4: the setup's limits
-def _lobes(rng):
-    """Limits with a lobe peak at 15 krpm (about 3x the 2 mm floor) and 10 % log-normal scatter."""
-    rpm = np.linspace(8000, 20000, 121)
-    base = 2e-3 * (1 + 2 * np.exp(-0.5 * ((rpm - 15000) / 600) ** 2))
-    lim = base[None, :] * np.exp(0.1 * rng.standard_normal((400, 1)))
-    q = {p: np.quantile(lim, 1 - p, axis=0) for p in (0.05, 0.5, 0.95)}
-    return ProbabilityLobes(rpm=rpm, limits=lim, levels=(0.05, 0.5, 0.95), quantiles=q, radial_depth_m=5e-3,
-                            milling="down")
-
-
 @pytest.mark.parametrize("criterion", ["mrr", "boundary"])
 def test_suggested_cuts_and_the_incumbent_stay_inside_the_allowed_depths(criterion):
     """Allowed: 10-18 krpm only, at most 4 mm below 14 krpm and 3.5 mm above (the peak's limit
