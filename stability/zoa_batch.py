@@ -416,7 +416,8 @@ def _k_onset(b, f0, f1, g0, g1, p_fin, fn, zeta, stiff, w, wres):
     between the lines and the phase in turns there (1 if ``Im lambda``, interpolated, is positive,
     else 0), for the lobe's speeds and the interpolated depth; and the exact onset, the end with
     ``Re lambda_b <= 0`` of an Illinois bracket narrowed to 1e-13, with the gap interpolated there,
-    for the phase solve's bracket."""
+    for the phase solve's bracket (also the atlas's, planner.atlas._kernel, which uses the exact
+    onset only)."""
     l0 = _k_branch(f0, b, f0, f1, g0, g1, fn, zeta, stiff, w, wres)
     l1 = _k_branch(f1, b, f0, f1, g0, g1, fn, zeta, stiff, w, wres)
     t = l0.real / (l0.real - l1.real)

@@ -32,8 +32,9 @@ it (see :func:`planner.atlas.evaluate`); the limit at its speed, and at up to ``
 speeds whose rate is within ``RANK_TOL`` of it, is solved exactly, as :func:`_a_limit` does:
 every segment whose image holds the speed and whose interpolated depth is within ``_PRESELECT`` of
 the smallest is solved for the chatter frequency (``zoa_batch._k_solve``, Illinois on the phase
-condition; an onset segment bracketed from the exact onset, found by Illinois on ``Re lambda``),
-which is :func:`stability.lobes.predict_point`'s limit, onsets included.
+condition; an onset segment bracketed from the exact onset, ``zoa_batch._k_onset``: Illinois on
+``Re lambda`` to 1e-13, as :mod:`stability.zoa`), which is :func:`stability.lobes.predict_point`'s
+limit, onsets included.
 """
 
 from __future__ import annotations
@@ -58,15 +59,12 @@ RANK_TOL = 0.05
 RANK_MORE = 3
 #: Bound of the curvature term of a segment, relative to its larger end (see :func:`_a_segments`).
 _CURVE_MAX = 0.1
-#: Illinois steps on ``Re lambda`` for a lobe's onset inside a grid interval (only an end with
-#: ``Re lambda <= 0`` is used: a bracket end, not a value).
-_ONSET_STEPS = 12
 #: As ``stability.zoa._PRESELECT_FACTOR``: candidates within this factor of the smallest
 #: interpolated depth at a speed are solved exactly.
 _PRESELECT = 1.25
 
 #: The compiled helpers of :mod:`stability.zoa_batch`, bound by :func:`atlas_kernel` before compiling.
-_k_lam = _k_depth_phase = _k_branch = _k_solve = _k_grid = _k_sample = None
+_k_lam = _k_depth_phase = _k_branch = _k_solve = _k_grid = _k_onset = _k_sample = None
 
 
 def _a_segments(n, freq, lam, dep, pha, seg, has):
@@ -133,38 +131,12 @@ def _a_depth(seg_bi, k, y, xs):
     return 1.0 / q if q > 0.0 else np.inf
 
 
-def _a_onset(b, i, freq, lam, gap, fn, zeta, stiff, w, wres):
-    """The end, with ``Re lambda_b <= 0``, of a small bracket of the onset ``Re lambda_b = 0`` in grid
-    interval ``i`` (Illinois, ``_ONSET_STEPS`` steps), and the gap interpolated there."""
-    f0, f1, g0, g1 = freq[i], freq[i + 1], gap[i], gap[i + 1]
-    a, fa = f0, lam[b, i].real
-    c, fc = f1, lam[b, i + 1].real
-    side = 0
-    for _ in range(_ONSET_STEPS):
-        denom = fc - fa
-        m = (a * fc - c * fa) / denom if denom != 0.0 else 0.5 * (a + c)
-        if not (min(a, c) < m < max(a, c)):
-            m = 0.5 * (a + c)
-        fm = _k_branch(m, b, f0, f1, g0, g1, fn, zeta, stiff, w, wres).real
-        if (fm > 0.0) == (fc > 0.0):
-            c, fc = m, fm
-            if side == -1:
-                fa = fa / 2.0
-            side = -1
-        else:
-            a, fa = m, fm
-            if side == 1:
-                fc = fc / 2.0
-            side = 1
-    f_on = a if not fa > 0.0 else c
-    t = (f_on - f0) / (f1 - f0)
-    return f_on, g0 + t * (g1 - g0)
-
-
-def _a_limit(rpm, teeth, n_lines, freq, lam, dep, gap, seg, has, fn, zeta, stiff, w, wres):
+def _a_limit(rpm, teeth, n_lines, freq, dep, pha, gap, seg, has, fn, zeta, stiff, w, wres):
     """Exact ZOA limit depth and chatter frequency at one speed (as ``stability.zoa._lowest_lobe``,
     onset segments included): the candidates are the lobe segments whose image holds the speed;
-    those within ``_PRESELECT`` of the smallest interpolated depth are solved exactly."""
+    those within ``_PRESELECT`` of the smallest interpolated depth are solved exactly, an onset
+    segment's from the exact onset (``zoa_batch._k_onset``, as ``zoa_batch`` and ``stability.zoa``
+    bracket it)."""
     xs = 60.0 / teeth
     y = 1.0 / rpm
     inv = xs / rpm
@@ -202,9 +174,9 @@ def _a_limit(rpm, teeth, n_lines, freq, lam, dep, gap, seg, has, fn, zeta, stiff
         b, k, i = int(cand[j, 0]), int(cand[j, 1]), int(cand[j, 2])
         f_a, f_b, g_a, g_b = freq[i], freq[i + 1], gap[i], gap[i + 1]
         if not dep[b, i] < np.inf:  # onset on the left: bracket from it
-            f_a, g_a = _a_onset(b, i, freq, lam, gap, fn, zeta, stiff, w, wres)
+            _, _, f_a, g_a = _k_onset(b, f_a, f_b, g_a, g_b, pha[b, i + 1], fn, zeta, stiff, w, wres)
         elif not dep[b, i + 1] < np.inf:  # onset on the right
-            f_b, g_b = _a_onset(b, i, freq, lam, gap, fn, zeta, stiff, w, wres)
+            _, _, f_b, g_b = _k_onset(b, f_a, f_b, g_a, g_b, pha[b, i], fn, zeta, stiff, w, wres)
         d, f, res = _k_solve(b, k, rpm, teeth, f_a, f_b, g_a, g_b, fn, zeta, stiff, w, wres)
         if d < np.inf and abs(res) < 1e-8 and d < out_d:
             out_d, out_f = d, f
@@ -323,7 +295,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
         next_j = best_j
         while next_j >= 0:
             jn = next_j
-            d, fc = _a_limit(rpm[jn], teeth, n, freq, lam, dep, gap, seg, has, fn_g, zeta_g, stiff_g, w_g, wres_g)
+            d, fc = _a_limit(rpm[jn], teeth, n, freq, dep, pha, gap, seg, has, fn_g, zeta_g, stiff_g, w_g, wres_g)
             tried_j[n_tried], tried_d[n_tried], tried_f[n_tried] = jn, d, fc
             cap = min(ap_hi, c_pow / rpm[jn])
             ap = min(cap, margin * d)
@@ -373,7 +345,7 @@ def _a_scan(fn, zeta, stiff, w, wres, f_lo, f_hi, teeth, n_freq, rpm, ap_lo, ap_
 
 
 _COMPILED: list = []
-_NAMES = ("_a_segments", "_a_depth", "_a_onset", "_a_limit", "_a_scan")
+_NAMES = ("_a_segments", "_a_depth", "_a_limit", "_a_scan")
 _PY = {name: globals()[name] for name in _NAMES}
 
 
@@ -387,7 +359,7 @@ def atlas_kernel():
 
         zoa_batch.scan_kernel()  # binds the compiled helpers in zoa_batch's namespace
         g = globals()
-        for name in ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid", "_k_sample"):
+        for name in ("_k_lam", "_k_depth_phase", "_k_branch", "_k_solve", "_k_grid", "_k_onset", "_k_sample"):
             g[name] = getattr(zoa_batch, name)
         for name in _NAMES:
             g[name] = numba.njit(cache=True)(_PY[name])
