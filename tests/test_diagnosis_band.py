@@ -29,7 +29,7 @@ from planner.cli import main
 from planner.diagnosis import causes, diagnose
 from planner.diagnosis.cases import MAIN_PARAMETER, expected_cause, hidden_effect_case, paper_like_cell
 from planner.diagnosis.chatter import detect_chatter
-from planner.diagnosis.response import modal_response, resolved_band_hz
+from planner.diagnosis.response import modal_response, visible_band_hz
 from stability.simulate import SensorModel, simulate
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "kr500_acetal"
@@ -136,7 +136,7 @@ def test_the_planning_model_on_the_long_example_names_no_mode_the_record_cannot_
     cause of the list, so ``none`` with warnings."""
     p = _cli_json(capsys, "diagnose", str(EXAMPLE / "records" / "cut_long"), "--model", str(PLANNING_MODEL),
                   "--json")
-    band = resolved_band_hz(1000.0)
+    band = visible_band_hz(1000.0)
     ranking = {r["cause"]: r for r in p["ranking"]}
     assert all(f <= band for f in _mode_frequencies(p["parameters"])), p["parameters"]
     if p["cause"] != "none":
@@ -193,7 +193,7 @@ def test_effects_are_named_when_truth_and_model_share_modes_above_the_band(cause
     key = MAIN_PARAMETER[expected]
     truth, found = case.truth[key], d.parameters[key]
     assert abs(found - truth) <= PARAMETER_TOLERANCE * abs(truth), f"{key}: found {found}, truth {truth}"
-    assert all(f <= resolved_band_hz(1000.0) for f in _mode_frequencies(d.parameters))
+    assert all(f <= visible_band_hz(1000.0) for f in _mode_frequencies(d.parameters))
 
 
 # -------------------------------------------------------------------------------- failed fits

@@ -40,7 +40,7 @@ process_damping           stability  ``C`` of Budak & Tunc's flank force in the 
                                      at each trial) where the forced vibration carries it.
 ========================  =========  ==============================================================
 
-The band is the one every record resolves (:func:`~planner.diagnosis.response.resolved_band_hz`:
+The band is the one every record shows (:func:`~planner.diagnosis.response.visible_band_hz`:
 the anti-alias cut-off ``0.4 fs``). A mode of the model above it (a spindle/tool mode in a 1 kHz
 record) is held as given; :func:`fit_above_band_compliance` measures the one thing the records tell
 of it, its compliance in the band, as the alternative the structure causes must beat.
@@ -240,7 +240,7 @@ def fit_unmodeled_mode(parts: Parts) -> Extension:
         m = np.linalg.solve(gram + 1e-12 * np.trace(gram) * np.eye(6), g)
         return bb - float(g @ m), m
 
-    # the new mode's frequency inside the band every record resolves (response.resolved_band_hz):
+    # the new mode's frequency inside the band every record shows (response.visible_band_hz):
     # above it the anti-alias filter leaves nothing to identify it by
     band = views_band_hz(st.views)
     # (1) a grid over the frequency (damping 3 %), then over the damping; (2) Nelder-Mead

@@ -27,7 +27,7 @@ better the extended model predicts.
    the simulator predicts; the coefficients also change the closed-loop spectrum.
 
 What the records cannot show. A mode of the model above the records' band (the anti-alias cut-off
-``0.4 fs``, :func:`~planner.diagnosis.response.resolved_band_hz`: a spindle/tool mode at 720 Hz in
+``0.4 fs``, :func:`~planner.diagnosis.response.visible_band_hz`: a spindle/tool mode at 720 Hz in
 a 1 kHz record) is held as given: it enters the comparison by its response in the band (about its
 static compliance), is not turned (``cross_coupling``), drifted (``pose_drift``) or used to size
 a delay, and a warning says so. What the records do tell of such a mode, its compliance in the

@@ -15,7 +15,7 @@ force_sensor_dynamics  largest deviation of the sensor gain from 1 at the       
                        compared harmonics
 channel_delay          phase of the delay at the model's highest mode inside the    5 deg
                        records' band (:func:`~planner.diagnosis.response.
-                       resolved_band_hz`)
+                       visible_band_hz`)
 process_damping        largest relative rise of a mode's damping in the cut         20 %
 unmodeled_mode         peak compliance of the new mode over the model's largest     10 %
 cross_coupling         rotation of the mode's direction                             5 deg

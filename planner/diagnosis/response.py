@@ -35,9 +35,9 @@ from oma.modal import ModalModel
 from stability.simulate import ANTI_ALIAS_FRACTION
 
 __all__ = ["mode_filter", "modal_response", "free_response_basis", "apply_delay", "unit_mode_response", "Delayer",
-           "resolved_band_hz", "resolved_modes", "views_band_hz", "band_limited_mode_response"]
+           "visible_band_hz", "resolved_modes", "views_band_hz", "band_limited_mode_response"]
 
-#: Highest frequency a record resolves, as a fraction of its sample rate: the cut-off of the
+#: Highest frequency a record shows, as a fraction of its sample rate: the cut-off of the
 #: anti-alias filter records are taken through (the simulator's, ``ANTI_ALIAS_FRACTION``); the
 #: Nyquist frequency is 0.5.
 BAND_FRACTION = ANTI_ALIAS_FRACTION
@@ -45,25 +45,27 @@ BAND_FRACTION = ANTI_ALIAS_FRACTION
 _MEMORY_TIME_CONSTANTS = 8.0
 
 
-def resolved_band_hz(sample_rate_hz: float) -> float:
-    """Highest frequency a record sampled at ``sample_rate_hz`` resolves, Hz (``0.4 fs``).
+def visible_band_hz(sample_rate_hz: float) -> float:
+    """Highest frequency a record sampled at ``sample_rate_hz`` shows at all, Hz (``0.4 fs``, the
+    anti-alias filter's cut-off).
 
     Above it the record's anti-alias filter has removed the signal (gain 0.5 at ``0.4 fs``,
     0.03 at the Nyquist frequency ``0.5 fs``): a mode whose resonance lies there cannot be
-    identified, turned or drifted from the record.
+    identified, turned or drifted from the record. Not :func:`oma.timefit.resolved_band_hz`
+    (``0.3 fs``, where the filter is flat to 1 %: the band identification fits modes in).
     """
     return BAND_FRACTION * float(sample_rate_hz)
 
 
 def views_band_hz(views) -> float:
     """The band every one of ``views`` (objects with ``sample_rate_hz``) resolves, Hz: the smallest
-    :func:`resolved_band_hz` (``inf`` for none)."""
-    return min((resolved_band_hz(v.sample_rate_hz) for v in views), default=math.inf)
+    :func:`visible_band_hz` (``inf`` for none)."""
+    return min((visible_band_hz(v.sample_rate_hz) for v in views), default=math.inf)
 
 
 def resolved_modes(model: ModalModel, sample_rate_hz: float) -> np.ndarray:
     """Which modes of ``model`` lie inside the band a record resolves, shape (n_modes,) of bool."""
-    return np.asarray(model.natural_frequency_hz, dtype=float) <= resolved_band_hz(sample_rate_hz)
+    return np.asarray(model.natural_frequency_hz, dtype=float) <= visible_band_hz(sample_rate_hz)
 
 
 def band_limited_mode_response(p, natural_frequency_hz: float, damping_ratio: float, sample_rate_hz: float,
@@ -304,7 +306,7 @@ def unit_mode_response(natural_frequency_hz: float, damping_ratio: float, force_
     f = np.array(force_N, dtype=float, ndmin=2)
     fs = float(sample_rate_hz)
     m0 = int(initial_samples) if initial_samples is not None else max(1, int(round(0.2 * fs)))
-    if natural_frequency_hz > resolved_band_hz(fs):
+    if natural_frequency_hz > visible_band_hz(fs):
         return band_limited_mode_response(f, natural_frequency_hz, damping_ratio, fs,
                                           initial_value=f[:, :m0].mean(axis=1))
     b, a = mode_filter(natural_frequency_hz, damping_ratio, fs)
