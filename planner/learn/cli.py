@@ -7,6 +7,7 @@ prints.
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 
@@ -132,7 +133,7 @@ def _cmd_learn(args) -> int:
     from oma.modal_io import read_modal_model
     from stability.setup_io import read_setup
 
-    from .outcomes_io import read_cuts
+    from .outcomes_io import expected_chatter_frequency, read_cuts
     from .posterior_io import MAX_WRITTEN_SAMPLES, write_posterior_model
     from .predictive import predict_cuts, probability_lobes
     from .speed_range import lobes_for_improvement
@@ -165,7 +166,9 @@ def _cmd_learn(args) -> int:
     max_depth = None if setup.limits.axial_depth_m is None else float(setup.limits.axial_depth_m[1])
     with warnings.catch_warnings(record=True) as seen:  # the table's warnings go into the report
         warnings.simplefilter("always", FileWarning)
-        cuts = read_cuts(args.cuts, tool=setup.tool, flute_length_m=args.flute_length, max_depth_m=max_depth)
+        # a detected "stable" whose record cannot show the chatter the prior expects weighs 0.1
+        cuts = read_cuts(args.cuts, tool=setup.tool, flute_length_m=args.flute_length, max_depth_m=max_depth,
+                         chatter_frequency=functools.partial(expected_chatter_frequency, prior, setup))
     input_warnings = [str(w.message) for w in seen if issubclass(w.category, FileWarning)]
     for w in seen:
         if not issubclass(w.category, FileWarning):

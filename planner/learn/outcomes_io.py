@@ -5,6 +5,15 @@ One row per cut: ``spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome`` an
 ``uncertain``, or empty where ``record`` names the cut's record: the outcome is then detected with
 the chatter detection of ``robomill diagnose`` (:func:`planner.diagnosis.chatter.detect_chatter`)
 and its confidence becomes the label's weight.
+
+A record shows chatter only below its band (0.45 of its sample rate; above, the anti-alias filter
+removed the line or it folded). Given the prior model, the detection is told the chatter frequency
+the model expects at the cut (the zero-order approximation at the cut's speed and engagement,
+:func:`expected_chatter_frequency`, as ``diagnose`` does): where that lies above the band, a "no
+chatter" says nothing and its weight is the bottom of the scale (0.1,
+:data:`planner.diagnosis.chatter.OUT_OF_BAND_CONFIDENCE`), and the rows are named in a warning.
+A 1 kHz record of a cut chattering at 740 Hz (a 720 Hz tool mode) read as a fairly sure "stable"
+used to pull the posterior's limit up there.
 """
 
 from __future__ import annotations
@@ -25,7 +34,8 @@ from oma.io import atomic_write
 
 from .likelihood import CHATTER, STABLE, UNCERTAIN
 
-__all__ = ["CutTable", "read_cuts", "write_cuts", "detect_outcome", "record_outcome", "CutsError", "OUTCOMES", "MIN_CUTS"]
+__all__ = ["CutTable", "read_cuts", "write_cuts", "detect_outcome", "record_outcome", "record_detection",
+           "expected_chatter_frequency", "CutsError", "OUTCOMES", "MIN_CUTS"]
 
 OUTCOMES = {"stable": STABLE, "chatter": CHATTER, "uncertain": UNCERTAIN}
 WORDS = {v: k for k, v in OUTCOMES.items()}
@@ -133,7 +143,7 @@ def _check_record(p: Path, line: int, rec: Path, record, rpm: float, ap: float, 
 
 
 def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: float | None = None,
-              max_depth_m: float | None = None, detect=None) -> CutTable:
+              max_depth_m: float | None = None, detect=None, chatter_frequency=None) -> CutTable:
     """Read a cut-outcomes CSV.
 
     Parameters
@@ -152,9 +162,16 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
         The setup's largest axial depth (``limits.axial_depth_m``): deeper cuts are kept (a test
         cut may go deeper than production), with a :class:`oma._fields.FileWarning` naming them.
     detect : callable, optional
-        ``detect(record_path, row) -> (outcome, confidence)`` for rows with an empty outcome and a
-        ``record``; default: the record is read, its own cut checked against the row (speed and
-        depths within ``RECORD_TOLERANCE``, the same milling), and :func:`record_outcome`.
+        ``detect(record_path, row) -> (outcome, confidence[, out_of_band])`` for rows with an
+        empty outcome and a ``record`` (``row``: ``spindle_rpm`` and ``expected_chatter_hz``, NaN
+        when not known); default: the record is read, its own cut checked against the row (speed
+        and depths within ``RECORD_TOLERANCE``, the same milling), and :func:`record_detection`.
+    chatter_frequency : callable, optional
+        ``chatter_frequency(spindle_rpm=, axial_depth_m=, radial_depth_m=, milling=) -> Hz``: the
+        chatter frequency the prior model expects at a detected row's cut (``functools.partial``
+        of :func:`expected_chatter_frequency`). Where it lies above the record's band, a "no
+        chatter" gets weight 0.1 and the rows are named in a :class:`oma._fields.FileWarning`.
+        Default: none (a "no" is taken at its detection confidence whatever the record's band).
 
     Raises
     ------
@@ -187,7 +204,7 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
         raise CutsError(p, "rows", "at least 1 cut", "0")
     deepest = UNIT_ERROR_DIAMETERS * tool.diameter_m
     cols = {k: [] for k in ("rpm", "ap", "ae", "down", "out", "w", "fz", "det")}
-    deep = []
+    deep, unseen = [], []
     for n, r in data:
         if len(r) != len(header):
             raise CutsError(p, f"line {n}", f"{len(header)} fields", f"{len(r)}")
@@ -223,14 +240,21 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
         elif word == "" and get("record"):
             rec = Path(get("record"))
             rec = rec if rec.is_absolute() else p.parent / rec
+            fc = float("nan") if chatter_frequency is None else float(
+                chatter_frequency(spindle_rpm=rpm, axial_depth_m=ap, radial_depth_m=ae, milling=milling))
             if detect is None:
                 from oma.record_io import read_record
 
                 record = read_record(rec)
                 _check_record(p, n, rec, record, rpm, ap, ae, milling)
-                code, weight = record_outcome(record, rpm)
+                res = record_detection(record, rpm, expected_chatter_hz=fc)
+                code, weight, out_of_band = (CHATTER if res.chatter else STABLE), res.confidence, res.out_of_band
+                rate = record.sample_rate_hz
             else:
-                code, weight = detect(rec, {"spindle_rpm": rpm})
+                code, weight, *rest = detect(rec, {"spindle_rpm": rpm, "expected_chatter_hz": fc})
+                out_of_band, rate = bool(rest[0]) if rest else False, float("nan")
+            if out_of_band and code == STABLE:
+                unseen.append((n, fc, rate))
             detected = True
         else:
             raise CutsError(p, f"line {n}: outcome", "stable, chatter or uncertain (or empty with a record)",
@@ -242,30 +266,83 @@ def read_cuts(path, *, tool, outcomes_required: bool = True, flute_length_m: flo
         lines = ", ".join(str(n) for n in deep[:10]) + (" ..." if len(deep) > 10 else "")
         warn_user(f"{p}: {len(deep)} cut(s) deeper than the setup's largest axial depth {max_depth_m:g} m "
                   f"(line {lines}): kept, as test cuts may go deeper than production; check the units")
+    if unseen:
+        warn_user(_unseen_message(p, unseen))
     arr = lambda k, dt=float: np.array(cols[k], dtype=dt)  # noqa: E731
     return CutTable(arr("rpm"), arr("ap"), arr("ae"), arr("down", bool), arr("out", int), arr("w"), arr("fz"),
                     arr("det", bool))
 
 
+def _unseen_message(p: Path, unseen: list) -> str:
+    """The warning naming detected rows whose "stable" could not see the expected chatter."""
+    from planner.diagnosis.chatter import OUT_OF_BAND_CONFIDENCE
+
+    lines = ", ".join(str(n) for n, _, _ in unseen[:10]) + (" ..." if len(unseen) > 10 else "")
+    fc = [f for _, f, _ in unseen]
+    freq = f"{min(fc):.0f} Hz" if max(fc) - min(fc) < 0.5 else f"{min(fc):.0f}-{max(fc):.0f} Hz"
+    rates = sorted({r for _, _, r in unseen if np.isfinite(r)})
+    sampled = f", records sampled at {', '.join(f'{r:g}' for r in rates)} Hz" if rates else ""
+    return (f"{p}: {len(unseen)} cut(s) detected as stable from records that cannot show the chatter the prior "
+            f"model expects (line {lines}: chatter at {freq}, above the band the detection searches{sampled}): "
+            f"a 'stable' read there says nothing, and counts with weight {OUT_OF_BAND_CONFIDENCE:g}; record such "
+            "cuts at more than 2.2 times the chatter frequency, or mark their outcome")
+
+
+def expected_chatter_frequency(model, setup, *, spindle_rpm: float, axial_depth_m: float, radial_depth_m: float,
+                               milling: str) -> float:
+    """The chatter frequency a model predicts for a cut, Hz: the zero-order approximation's at the
+    cut's speed and engagement (:func:`stability.lobes.predict_point`, as ``diagnose`` gives
+    :func:`planner.diagnosis.chatter.detect_chatter` its ``expected_chatter_hz``), with the
+    setup's tool, cutting frame and cutting coefficients. NaN when the ZOA cannot solve the model.
+    """
+    from dataclasses import replace
+
+    from stability.lobes import predict_point
+
+    cut = replace(setup.cut, radial_depth_m=float(radial_depth_m), milling=milling, spindle_rpm=float(spindle_rpm),
+                  axial_depth_m=float(axial_depth_m))
+    try:
+        op = predict_point(model, setup.tool, cut, setup.material.cutting_coefficients, spindle_rpm=float(spindle_rpm),
+                           axial_depth_m=float(axial_depth_m), method="zoa", n_freq=4000)
+    except (ValueError, ArithmeticError):  # pragma: no cover - a model the ZOA cannot handle
+        return float("nan")
+    return float(op.chatter_frequency_hz)
+
+
 def detect_outcome(record_path, row) -> tuple[int, float]:
-    """Outcome and confidence of a cut from its record file (:func:`record_outcome`)."""
+    """Outcome and confidence of a cut from its record file (:func:`record_outcome`; ``row``:
+    ``spindle_rpm`` and optionally ``expected_chatter_hz``)."""
     from oma.record_io import read_record
 
-    return record_outcome(read_record(record_path), row["spindle_rpm"])
+    return record_outcome(read_record(record_path), row["spindle_rpm"],
+                          expected_chatter_hz=row.get("expected_chatter_hz"))
 
 
-def record_outcome(record, spindle_rpm: float | None = None) -> tuple[int, float]:
-    """Outcome and confidence of a cut from its record, by ``diagnose``'s chatter detection.
+def record_detection(record, spindle_rpm: float | None = None, *, expected_chatter_hz: float | None = None):
+    """``diagnose``'s chatter detection of a cut's record
+    (:class:`planner.diagnosis.chatter.ChatterResult`).
 
     All the record's channels are analysed, at the record's spindle speed (``spindle_rpm`` when
-    the record has none). The confidence (:attr:`planner.diagnosis.chatter.ChatterResult.confidence`)
-    is how far the decisive statistics are from their thresholds, one decade: sure; clipped to
-    ``[0.1, 1]``.
+    the record has none). ``expected_chatter_hz`` (Hz, :func:`expected_chatter_frequency`): above
+    the band searched, a "no" gets confidence 0.1 and ``out_of_band`` is set.
     """
     from planner.diagnosis.chatter import detect_chatter
 
     rpm = record.cut.spindle_rpm if record.cut.spindle_rpm else spindle_rpm
-    res = detect_chatter(record.data, record.sample_rate_hz, float(rpm) / 60.0, record.tool.teeth)
+    return detect_chatter(record.data, record.sample_rate_hz, float(rpm) / 60.0, record.tool.teeth,
+                          expected_chatter_hz=expected_chatter_hz)
+
+
+def record_outcome(record, spindle_rpm: float | None = None, *,
+                   expected_chatter_hz: float | None = None) -> tuple[int, float]:
+    """Outcome and confidence of a cut from its record, by ``diagnose``'s chatter detection
+    (:func:`record_detection`).
+
+    The confidence (:attr:`planner.diagnosis.chatter.ChatterResult.confidence`) is how far the
+    decisive statistics are from their thresholds, one decade: sure; clipped to ``[0.1, 1]``; 0.1
+    for a "no" when ``expected_chatter_hz`` lies above the record's band.
+    """
+    res = record_detection(record, spindle_rpm, expected_chatter_hz=expected_chatter_hz)
     return (CHATTER if res.chatter else STABLE), res.confidence
 
 
