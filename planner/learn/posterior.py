@@ -29,6 +29,7 @@ import numpy as np
 from oma.cutting import CuttingCoefficients
 from oma.modal import ModalModel
 
+from ..workers import progress_bar
 from .likelihood import Likelihood
 from .tables import LimitTable, scaled_coefficients, scaled_model
 
@@ -82,7 +83,7 @@ def _ess(logw: np.ndarray) -> float:
 
 def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np.random.Generator,
         n_particles: int = 2000, ess_fraction: float = 0.5, moves: int = 6, final_moves: int = 20,
-        support: Callable[[np.ndarray], np.ndarray] | None = None) -> SMCResult:
+        support: Callable[[np.ndarray], np.ndarray] | None = None, desc: str | None = None) -> SMCResult:
     """Tempered SMC from a zero-mean normal prior ``N(0, diag(prior_sd^2))`` to the posterior.
 
     Parameters
@@ -98,6 +99,10 @@ def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np
         is ``-inf`` outside it). The particles then start from the prior restricted to it (by
         rejection), so that the first tempering step does not collapse them; the evidence is
         relative to that restricted prior.
+    desc : str, optional
+        The label of a progress bar over ``beta`` from 0 to 1, with the tempering stage
+        (:func:`planner.workers.progress_bar`: on a terminal, for runs over a few seconds); None:
+        none. The samples do not depend on it.
     """
     sd = np.asarray(prior_sd, dtype=float)
     d = sd.size
@@ -117,6 +122,9 @@ def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np
     beta, log_z = 0.0, 0.0
     betas, acc_hist = [0.0], []
     scale = 2.38 / np.sqrt(max(d, 1))
+    # the bar follows beta, redrawn after every move (miniters=0); nothing of it touches the particles or rng
+    bar = progress_bar(1.0, desc, unit="beta", miniters=0,
+                       bar_format="{desc}: {percentage:3.0f}%|{bar}| beta {n:.3f}{postfix} [{elapsed}]")
     while True:
         done = beta >= 1.0
         if not done:
@@ -136,8 +144,12 @@ def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np
             idx = _systematic(rng, logw)
             x, ll, beta = x[idx], ll[idx], new
             betas.append(beta)
+            bar.update(beta - betas[-2])
         n_moves = 0 if d == 0 else final_moves if beta >= 1.0 else moves  # d = 0: nothing to move
-        for _ in range(n_moves):
+        for move in range(n_moves):
+            bar.set_postfix_str(f"stage {len(betas) - 1}{' (final)' if beta >= 1.0 else ''}, move {move + 1}/{n_moves}",
+                                refresh=False)
+            bar.update(0)
             cov = np.cov(x.T).reshape(d, d) + np.diag((1e-6 * sd) ** 2)
             chol = np.linalg.cholesky(cov)
             prop = x + scale * rng.standard_normal(x.shape) @ chol.T
@@ -150,6 +162,7 @@ def smc(log_likelihood: Callable[[np.ndarray], np.ndarray], prior_sd, *, rng: np
             scale *= 1.25 if rate > 0.35 else (0.7 if rate < 0.15 else 1.0)
         if beta >= 1.0:
             break
+    bar.close()
     return SMCResult(samples=x, log_likelihood=ll, log_evidence=log_z, betas=tuple(betas),
                      acceptance=tuple(acc_hist))
 

@@ -49,15 +49,17 @@ def predictive_grid(posterior: Posterior, *, step: float = 0.015) -> Grid:
 
 
 def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: str | None,
-           grid: Grid | None, known: LimitTable | None = None) -> LimitTable:
+           grid: Grid | None, known: LimitTable | None = None, desc: str | None = "limit table") -> LimitTable:
     return build_table(posterior.reference, setup.tool, setup.cut, posterior.coefficients, rpm, radial_depth_m,
-                       down, grid or predictive_grid(posterior), method=method or posterior.method, known=known)
+                       down, grid or predictive_grid(posterior), method=method or posterior.method, known=known,
+                       desc=desc)
 
 
 def predict_cuts(posterior: Posterior, setup, cuts: CutTable, *, method: str | None = None,
                  grid: Grid | None = None) -> np.ndarray:
     """Posterior probability that each cut is stable, shape (n_cuts,)."""
-    table = _table(posterior, setup, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, method=method, grid=grid)
+    table = _table(posterior, setup, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, method=method, grid=grid,
+                   desc="predictions: limit table")
     return posterior.probability_stable(table, cuts.axial_depth_m)
 
 
@@ -133,7 +135,7 @@ def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 15
     rpm = np.geomspace(float(rpm_range[0]), float(rpm_range[1]), int(n_rpm))
     post = posterior.thinned(max_samples)
     table = _table(post, setup, rpm, np.full(rpm.size, ae), np.full(rpm.size, mill == "down"), method=method,
-                   grid=grid)
+                   grid=grid, desc="probability lobes: limit table")
     return lobes_from_table(post, table, rpm, levels=levels, radial_depth_m=ae, milling=mill)
 
 
@@ -207,13 +209,13 @@ class ChanceLimit:
         t0 = time.perf_counter()
         self._table = _table(self.posterior, setup, rpm, np.full(rpm.size, setup.cut.radial_depth_m),
                              np.full(rpm.size, setup.cut.milling == "down"), method=self._method, grid=None,
-                             known=None if known is None else known._table)
+                             known=None if known is None else known._table, desc="chance limit: table")
         t1 = time.perf_counter()
         self.table_error = 0.0
         if check > 0:
             u = self._draw(check, seed=0)
             r = np.geomspace(*self.rpm_range, int(check_speeds))
-            err = self.posterior.log_limits(self._at(r), samples=u) - self._direct(r, u)
+            err = self.posterior.log_limits(self._at(r), samples=u) - self._direct(r, u, desc="chance limit: check")
             self.table_error = float(np.sqrt(np.mean(err ** 2)))
         self.timings_s = {"table": t1 - t0, "check": time.perf_counter() - t1}
         lk = self.posterior.likelihood
@@ -224,15 +226,15 @@ class ChanceLimit:
         samples = self.posterior.samples
         return samples[np.random.default_rng(seed).permutation(samples.shape[0])[:int(n)]]
 
-    def _direct(self, rpm, u) -> np.ndarray:
+    def _direct(self, rpm, u, *, desc: str = "chance limit: direct limits") -> np.ndarray:
         """The log limits of the samples ``u`` at the speeds ``rpm`` solved directly (no table),
-        (n_samples, n_rpm)."""
+        (n_samples, n_rpm); ``desc`` labels the progress bar."""
         rpm = np.atleast_1d(np.asarray(rpm, dtype=float))
         post, setup = self.posterior, self._setup
         return direct_log_limits(post.reference, setup.tool, setup.cut, post.coefficients, rpm,
                                  np.full(rpm.size, setup.cut.radial_depth_m),
                                  np.full(rpm.size, setup.cut.milling == "down"), u, method=self._method,
-                                 sdm_steps=self._table.grid.sdm_steps)
+                                 sdm_steps=self._table.grid.sdm_steps, desc=desc)
 
     def _at(self, rpm) -> LimitTable:
         """The range's table read at the speeds ``rpm`` (clipped to the range)."""
@@ -258,7 +260,7 @@ class ChanceLimit:
         mean. ``holds``: not below the level by more than two standard errors. The plan's speed is
         usually on a lobe's peak, where a table interpolates least well; this is where it matters."""
         lk, log_a = self.posterior.likelihood, np.log(axial_depth_m)
-        direct = self._direct(rpm, self._draw(samples, seed=1))[:, 0]
+        direct = self._direct(rpm, self._draw(samples, seed=1), desc="plan check: direct limits")[:, 0]
         p = 1.0 - lk.p_chatter(log_a - direct)
         se = float(np.std(p, ddof=1) / np.sqrt(p.size)) if p.size > 1 else float("nan")
         table = np.log(self.samples([rpm])[:, 0])

@@ -238,10 +238,11 @@ def _log_limits_job(job) -> np.ndarray:
 
 def direct_log_limits(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients, rpm,
                       radial_depth_m, down, samples, *, method: str = "sdm", sdm_steps=None,
-                      workers: int | None = None) -> np.ndarray:
+                      workers: int | None = None, desc: str | None = "direct limits") -> np.ndarray:
     """``log`` limit depth of each parameter set (rows of ``samples``: five log-multipliers of the
     reference) at each cut, computed directly by the cut's method: the check of a table's
-    interpolation, shape (n_samples, n_cuts)."""
+    interpolation, shape (n_samples, n_cuts). ``desc``: the label of the progress bar over its
+    jobs (one per sample and engagement; :func:`planner.workers.progress_bar`; None: none)."""
     rpm = np.asarray(rpm, dtype=float).ravel()
     ae = np.asarray(radial_depth_m, dtype=float).ravel()
     down = np.asarray(down, dtype=bool).ravel()
@@ -260,14 +261,15 @@ def direct_log_limits(model: ModalModel, tool: Tool, base_cut: Cut, coefficients
     if workers is None:  # its jobs solve a few speeds each: forking pays at fewer limits than for a table
         workers = default_workers() if samples.shape[0] * rpm.size >= PARALLEL_MIN_LIMITS / 4 else 1
     out = np.empty((samples.shape[0], rpm.size))
-    for (i, cols), val in zip(where, process_map(_log_limits_job, jobs, workers=workers)):
+    for (i, cols), val in zip(where, process_map(_log_limits_job, jobs, workers=workers, desc=desc)):
         out[i, cols] = val
     return out
 
 
 def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: CuttingCoefficients,
                 rpm, radial_depth_m, down, grid: Grid, *, method: str = "sdm",
-                workers: int | None = None, known: LimitTable | None = None) -> LimitTable:
+                workers: int | None = None, known: LimitTable | None = None,
+                desc: str | None = "limit table") -> LimitTable:
     """The :class:`LimitTable` of cuts given by speed, radial depth and milling.
 
     Per engagement, the log-speed lattice holds every lattice point of ``log n_j - log_f_range``
@@ -294,6 +296,10 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
         lattice step, nodes and SDM resolution (e.g. over a narrower speed range): the lattice
         points it holds for an engagement (same radial depth, milling and method) are copied from
         it, only the others are solved (a range extended downward costs only its new speeds).
+    desc : str, optional
+        The label of the progress bar over the table's jobs (one per engagement, damping node and
+        ratio node; :func:`planner.workers.progress_bar`: on a terminal, for runs over a few
+        seconds); None: none. The values do not depend on it.
     """
     if known is not None and not _same_nodes(known.grid, grid):
         raise ValueError("known must be a table of the same lattice step, damping and ratio nodes and SDM steps")
@@ -330,7 +336,7 @@ def build_table(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     work = sum(t.size for t in todo) * grid.log_zeta.size * grid.log_ratio.size
     if workers is None:
         workers = default_workers() if work >= PARALLEL_MIN_LIMITS else 1
-    results = iter(process_map(_log_limits_job, jobs, workers=workers))
+    results = iter(process_map(_log_limits_job, jobs, workers=workers, desc=desc))
     for val, rows in zip(tables, todo):
         if rows.size:
             for iz in range(grid.log_zeta.size):
@@ -372,7 +378,7 @@ def mode_shares(model: ModalModel, tool: Tool, base_cut: Cut, coefficients: Cutt
     """
     def log_limits(m):
         return direct_log_limits(m, tool, base_cut, coefficients, rpm, radial_depth_m, down, np.zeros((1, 5)),
-                                 method=method, sdm_steps=sdm_steps, workers=workers)[0]
+                                 method=method, sdm_steps=sdm_steps, workers=workers, desc="mode shares")[0]
 
     base = log_limits(model)
     out = np.empty((base.size, model.n_modes))

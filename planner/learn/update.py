@@ -130,9 +130,10 @@ def grid_for(prior_log_sd: np.ndarray, *, coarse: bool = False) -> Grid:
     return Grid.around(float(prior_log_sd[0]), float(prior_log_sd[2]), sd_ratio)
 
 
-def table_for(model, setup, cuts: CutTable, grid: Grid, *, method: str = "sdm") -> LimitTable:
+def table_for(model, setup, cuts: CutTable, grid: Grid, *, method: str = "sdm", desc: str | None = "limit table"
+              ) -> LimitTable:
     return build_table(model, setup.tool, setup.cut, setup.material.cutting_coefficients, cuts.spindle_rpm,
-                       cuts.radial_depth_m, cuts.down, grid, method=method)
+                       cuts.radial_depth_m, cuts.down, grid, method=method, desc=desc)
 
 
 def _accuracy(p_stable: np.ndarray, cuts: CutTable) -> float:
@@ -267,8 +268,10 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
 
     def sample(table, model_error=None):
         """One SMC run per model of the rate (the same table and support)."""
+        label = "learn: posterior" + (" (table error)" if model_error is not None else "")
         return [smc(log_likelihood(table, lk, model_error), x_sd(lk), rng=rng, n_particles=n_particles,
-                    support=inside(table)) for lk in models]
+                    support=inside(table), desc=label + (f" {k + 1}/{len(models)}" if len(models) > 1 else ""))
+                for k, lk in enumerate(models)]
 
     def pooled(runs):
         return np.concatenate([full(r.samples) for r in runs])
@@ -280,15 +283,15 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         # from converged) locates the posterior (under the widest model of the rate, the last);
         # the fine table covers only where it lies, with a margin of 2 sds beyond its extreme
         # samples (notes/learn.md: why, and what it costs)
-        coarse = table_for(prior, setup, cuts, grid_for(sd, coarse=True), method=method)
+        coarse = table_for(prior, setup, cuts, grid_for(sd, coarse=True), method=method, desc="learn: coarse table")
         res0 = smc(log_likelihood(coarse, models[-1]), x_sd(models[-1]), rng=rng,
-                   n_particles=max(500, n_particles // 2), support=inside(coarse))
+                   n_particles=max(500, n_particles // 2), support=inside(coarse), desc="learn: coarse posterior")
         u0 = full(res0.samples)
         stages.append(time.perf_counter() - t0)
         table = table_for(prior, setup, cuts, Grid.covering(u0[:, 0], u0[:, 2], u0[:, 4] - u0[:, 3],
                                                             bounds=grid_for(sd), max_zeta=FINE_NODES[0],
                                                             max_ratio=FINE_NODES[1]),
-                          method=method)
+                          method=method, desc="learn: table")
     t1 = time.perf_counter()
     runs = sample(table)
     if coarse is not None and _at_edge(pooled(runs), table, grid_for(sd), sd):
@@ -298,7 +301,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         table = table_for(prior, setup, cuts, Grid.covering(u1[:, 0], u1[:, 2], u1[:, 4] - u1[:, 3],
                                                             bounds=grid_for(sd), max_zeta=FINE_NODES[0],
                                                             max_ratio=FINE_NODES[1]),
-                          method=method)
+                          method=method, desc="learn: wider table")
         stages.append(time.perf_counter() - t1)
         runs = sample(table)
     t2 = time.perf_counter()
@@ -310,7 +313,8 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         u_all = pooled(runs)
         u_v = u_all[rng.choice(u_all.shape[0], min(int(validate), u_all.shape[0]), replace=False)]
         args = (setup.tool, setup.cut, coef, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down)
-        direct = direct_log_limits(prior, *args, u_v, method=method, sdm_steps=table.grid.sdm_steps)
+        direct = direct_log_limits(prior, *args, u_v, method=method, sdm_steps=table.grid.sdm_steps,
+                                   desc="learn: table check")
         model_error = np.sqrt(np.mean((table.log_limit(*u_v.T) - direct) ** 2, axis=0))
         if spread.any():
             # the modes' own deviations integrated out: the same samples with the modes moved apart
