@@ -30,8 +30,13 @@ pair's damping (session 6).
 SSI decides how many modes there are; where it formed no cluster for a true mode (a weak mode
 beside a strong one, or between two groups), the refined model of the nearest group leaves that
 mode's response unexplained. Each refined group is scanned for it with the score test of one more
-mode (:func:`_missing_mode`); a large excess is refitted as a mode and kept under the same
-likelihood gate as every other (session 13).
+mode (:func:`oma.output_only._ml_inference._missing_mode`); a large excess is refitted as a mode
+and kept under the same likelihood gate as every other (session 13).
+
+The modules: :mod:`oma.output_only.whittle` (the likelihood, its gradient and information),
+:mod:`oma.output_only._ml_fit` (one group's start, Fisher scoring and tail models),
+:mod:`oma.output_only._ml_inference` (its standard errors, each mode's evidence, the scan for a
+missing mode) and this one (the groups, the decisions between them, the result).
 """
 
 from __future__ import annotations
@@ -40,124 +45,20 @@ from typing import NamedTuple
 
 import numpy as np
 
-from scipy.linalg import eigh
-
-from .harmonics import at_milling_line
-from .ssi import same_mode
-from .whittle import (_Model, _fisher, _free_c, _input_level, _nll, _residual_columns, _response, _spectrum, _tril,
-                      _unpack)
+from ._ml_fit import _TAIL_PARENT, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
+from ._ml_inference import _information_se, _missing_mode, _mode_gain, _new_mode_apart
+from .whittle import _fisher, _input_level, _unpack
 
 __all__ = ["refine_modes_ml", "RefinedModes"]
 
-#: Excess of the residual scan (:func:`_missing_mode`: the largest generalised eigenvalue less 1,
-#: in units of its noise ``1/sqrt(n_eff)``) above which a group is refitted with one more mode.
-#: Session 13: over 135 refined groups of 70 benchmark records the largest excess without a
-#: missing mode was 5.1 (median about 2); the three records whose SSI missed a true mode gave 8.2-9.6.
+#: Excess of the residual scan (:func:`oma.output_only._ml_inference._missing_mode`: the largest
+#: generalised eigenvalue less 1, in units of its noise ``1/sqrt(n_eff)``) above which a group is
+#: refitted with one more mode. Session 13: over 135 refined groups of 70 benchmark records the
+#: largest excess without a missing mode was 5.1 (median about 2); the three records whose SSI
+#: missed a true mode gave 8.2-9.6.
 ADD_SIGMAS = 6.0
-#: Fisher-scoring iterations of the refits without one mode (:func:`refine_modes_ml` ``evidence``;
-#: started from the full fit's other modes, they converge in a few).
-EVIDENCE_ITER = 6
 #: Fisher-scoring steps of a jackknife replicate's refit from the full-record optimum.
 JACKKNIFE_ITER = 12
-#: Fisher-scoring steps taken with one evaluation of the information matrix.
-FISHER_REUSE = 3
-
-
-def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: int = 4, jm=None,
-             reuse: int = None):
-    """Fisher scoring with Levenberg damping from ``p``. The first ``warm`` iterations move only
-    the covariance factors (the linear least-squares start of ``C`` is rough, and a full step
-    from it can throw a frequency across the band); a step moves no frequency by more than a
-    quarter of its starting half-power width."""
-    val, g = _nll(p, mod, x)
-    lam = 1e-3
-    n_modal = 2 * mod.m + mod.m * mod.l
-    age = 0
-    reuse = FISHER_REUSE if reuse is None else reuse
-    for it in range(max_iter):
-        # the information changes slowly near the optimum: recomputed every ``reuse`` steps (and
-        # after a rejected step); ``jm`` given: that of ``p``
-        if jm is None or age >= reuse or (it == warm and warm > 0):
-            jm, age = _fisher(p, mod), 0
-        age += 1
-        free = np.arange(p.size) if it >= warm else np.arange(n_modal, p.size)
-        jf = jm[np.ix_(free, free)]
-        diag = np.maximum(np.diag(jf), 1e-12)
-        while True:
-            step = np.zeros_like(p)
-            step[free] = np.linalg.solve(jf + lam * np.diag(diag), -g[free])
-            step[:mod.m] = np.clip(step[:mod.m], -0.25, 0.25)
-            v2, g2 = _nll(p + step, mod, x)
-            if v2 <= val:
-                break
-            lam *= 10.0
-            if age > 1:
-                jm, age = _fisher(p, mod), 1
-                jf = jm[np.ix_(free, free)]
-                diag = np.maximum(np.diag(jf), 1e-12)
-            if lam > 1e8:
-                if it < warm:
-                    break
-                return p, val
-        if lam > 1e8:
-            lam = 1e-3
-            continue
-        done = val - v2 < tol and it >= warm
-        p, val, g = p + step, v2, g2
-        lam = max(lam / 10.0, 1e-6)
-        if done:
-            break
-    return p, val
-
-
-def _initial(mod: _Model, f, z, u, x):
-    """Start: SSI frequency, damping, direction; C and N by linear least squares on P, made PSD."""
-    m, l, gain = mod.m, mod.l, mod.gain
-    d = _response(np.asarray(f), np.asarray(z), np.asarray(z), mod.w)
-    v = u[None, :, :] / d[:, None, :]
-    if mod.q:
-        v = np.concatenate([v, mod.fx], axis=2)
-    mq = m + mod.q
-    pk = x[:, :, None] * x[:, None, :].conj()
-    cols = []
-    pairs = [(r, s) for r in range(mq) for s in range(r, mq) if mod.coherent or not (r < m <= s)]
-    for r, s in pairs:
-        cols.append((gain[:, None, None] * (v[:, :, r:r + 1] * v[:, None, :, s].conj()
-                                            + (v[:, :, s:s + 1] * v[:, None, :, r].conj() if s != r else 0))
-                     ).ravel())
-    if mod.noise:
-        for a in range(l):
-            for b in range(a, l):
-                e = np.zeros((l, l)); e[a, b] = e[b, a] = 1.0
-                cols.append(np.broadcast_to(e, pk.shape).ravel())
-    amat = np.array(cols).T
-    amat = np.vstack([amat.real, amat.imag])
-    rhs = np.concatenate([pk.ravel().real, pk.ravel().imag])
-    coef = np.linalg.lstsq(amat, rhs, rcond=None)[0]
-    c = np.zeros((mq, mq)); n = np.zeros((l, l))
-    k = 0
-    for r, s in pairs:
-        c[r, s] = c[s, r] = coef[k]; k += 1
-    if mod.noise:
-        for a in range(l):
-            for b in range(a, l):
-                n[a, b] = n[b, a] = coef[k]; k += 1
-
-    def psd_chol(a, floor):
-        if a.size == 0:
-            return a
-        ev, vec = np.linalg.eigh(a)
-        ev = np.maximum(ev, floor * max(ev.max(), 1e-300))
-        return np.linalg.cholesky((vec * ev) @ vec.T)
-
-    lc = psd_chol(c, 1e-3)
-    ln = psd_chol(n, 1e-3) if mod.noise else np.zeros((l, l))
-    if not np.all(np.isfinite(lc)) or not np.all(np.isfinite(ln)):
-        return None
-    parts = [np.zeros(m), np.log(z), u.T.ravel(), lc[_free_c(mod)]]
-    if mod.noise:
-        parts.append(ln[_tril(l)])
-    return np.concatenate(parts)
 
 
 def _band_bins(ffts, a, b, lines, guard):
@@ -170,243 +71,6 @@ def _band_bins(ffts, a, b, lines, guard):
             sel &= np.min(np.abs(freq[:, None] - lines[None, :]), axis=1) > guard
         ws.append(2 * np.pi * freq[sel]); xs.append(x[:, sel].T)
     return np.concatenate(ws), np.concatenate(xs)
-
-
-def _background_nll(x):
-    """Negative log-likelihood of the bins under a constant background alone (its ML estimate,
-    the sample covariance: ``K log det N + K l``)."""
-    k, l = x.shape
-    n = (x.T @ x.conj()) / k
-    return float(k * np.real(np.linalg.slogdet(n)[1]) + k * l)
-
-
-#: The tail model each richer one extends (its fit starts from that one's optimum).
-_TAIL_PARENT = {"known": False, "background": False, True: "background"}
-
-
-def _known_tails(w, tails, scale):
-    """Columns of the modes outside the group (their frequencies, damping and directions as
-    estimated, in the group's channel scale): ``u_j / D_j(w)`` normalised as the modes' own,
-    shape (K, l, q)."""
-    f, z, u = tails
-    uu = u / scale[:, None]
-    uu = uu / np.linalg.norm(uu, axis=0)
-    d = _response(np.asarray(f, float), np.asarray(z, float), np.asarray(z, float), w)
-    return (uu[None, :, :] / d[:, None, :]).astype(complex)
-
-
-def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, previous=None, tails=None):
-    """ML fit of one group of modes on the bins ``w``, ``x``: frequencies, damping, unit
-    directions (m, l), the negative log-likelihood, the parameters and the model; None when the
-    fit fails or is worse than its start. ``residuals``: the out-of-band modes' tails as residual
-    terms coherent with the modes (:func:`_residual_columns`; the constant background is then
-    dropped for displacement and acceleration, where one of the residual terms is constant);
-    else a constant background. ``previous``: (model, parameters) of a fit of a model nested in
-    this one, whose optimum starts this fit (:func:`_nested_start`). Fisher scoring (Levenberg-damped) from linear least squares: on
-    the benchmark records it reached the best optimum of the tried schemes (L-BFGS-B first
-    stalled in the ill-conditioned covariance factors) at a third of the cost."""
-    m, l = f0.size, x.shape[1] if x.ndim == 2 else 0
-    if residuals == "known":
-        fx = tails if tails is not None else np.zeros((w.size, l, 0), dtype=complex)
-        noise = True
-    else:
-        fx = _residual_columns(w, l) if residuals else np.zeros((w.size, l, 0), dtype=complex)
-        noise = not residuals or derivative == 1
-    mod = _Model(m, l, w, None, fx, noise,
-                 (np.asarray(f0, dtype=float), np.asarray(z0, dtype=float)), coherent=residuals != "background")
-    if w.size * l < 4 * _n_params(mod):
-        return None
-    gain = w ** (2 * derivative)
-    mod = mod._replace(gain=gain / np.mean(gain))
-    p0 = None
-    if previous is not None and previous[0].m == m:
-        p0 = _nested_start(previous[0], previous[1], mod)
-        mod = mod._replace(ref=previous[0].ref)
-    if p0 is None:
-        p0 = _initial(mod, mod.ref[0], mod.ref[1], np.asarray(u0, dtype=float).reshape(l, m), x)
-    if p0 is None:
-        return None
-    fun0 = _nll(p0, mod, x)[0]
-    if fun0 >= 1e30:
-        return None
-    px, fun = _scoring(p0, mod, x, max_iter=max_iter)
-    if not np.all(np.isfinite(px)) or fun > fun0:
-        return None
-    f, z, u = _unpack(px, mod)[:3]
-    return f, z, u, fun, px, mod
-
-
-def _nested_start(prev: _Model, p, mod: _Model):
-    """Parameters of ``mod`` that give the same spectrum as ``p`` of the nested model ``prev``
-    (constant background -> residual terms as background -> coherent residual terms): the modes
-    and their ``C`` block kept, a constant background moved into the residual block whose shape
-    is constant (mass line for acceleration, stiffness line for displacement), the rest near 0."""
-    pp = _unpack(p, prev)
-    m, l, q = mod.m, mod.l, mod.q
-    c = np.zeros((m + q, m + q))
-    c[:m + prev.q, :m + prev.q] = pp.c if prev.q <= q else pp.c[:m + q, :m + q]
-    n = pp.n.copy()
-    if prev.q == 0 and q and not mod.noise:
-        for start in (0, l):   # the residual block whose shape is constant in the measured quantity
-            shape = mod.gain * np.abs(mod.fx[:, 0, start]) ** 2
-            if np.ptp(shape) < 1e-6 * np.max(shape):
-                c[m + start:m + start + l, m + start:m + start + l] = n / np.mean(shape)
-                n = np.zeros((l, l))
-                break
-    if not mod.coherent:
-        c[m:, :m] = c[:m, m:] = 0.0
-    ev, vec = np.linalg.eigh(c)
-    lc = np.linalg.cholesky((vec * np.maximum(ev, 1e-6 * max(ev.max(), 1e-300))) @ vec.T)
-    parts = [p[:2 * m + m * l], lc[_free_c(mod)]]
-    if mod.noise:
-        ev, vec = np.linalg.eigh(n)
-        parts.append(np.linalg.cholesky((vec * np.maximum(ev, 1e-6 * max(ev.max(), 1e-300))) @ vec.T)[_tril(l)])
-    out = np.concatenate(parts)
-    return out if np.all(np.isfinite(out)) else None
-
-
-def _without_mode(p, mod: _Model, j: int):
-    """The model without mode ``j`` and its parameters giving the spectrum of ``p`` less that
-    mode's term (its row and column of ``C`` dropped): the start of the refit without it."""
-    pp = _unpack(p, mod)
-    m, l = mod.m, mod.l
-    rest = np.delete(np.arange(m), j)
-    new = mod._replace(m=m - 1, ref=(mod.ref[0][rest], mod.ref[1][rest]))
-    keep = np.delete(np.arange(m + mod.q), j)
-    c = pp.c[np.ix_(keep, keep)]
-    if c.size:
-        ev, vec = np.linalg.eigh(c)
-        lc = np.linalg.cholesky((vec * np.maximum(ev, 1e-9 * max(ev.max(), 1e-300))) @ vec.T)
-    else:
-        lc = c
-    vraw = p[2 * m:2 * m + m * l].reshape(m, l)[rest]
-    parts = [p[:m][rest], p[m:2 * m][rest], vraw.ravel(), lc[_free_c(new)]]
-    if mod.noise:
-        parts.append(pp.ln[_tril(l)])
-    return new, np.concatenate(parts)
-
-
-def _orthogonalised(u):
-    """Symmetric (Loewdin) orthonormalisation of the columns of ``u``: ``u (u^T u)^(-1/2)``, the
-    orthonormal set nearest to ``u`` that favours no column."""
-    ev, vec = np.linalg.eigh(u.T @ u)
-    return u @ (vec / np.sqrt(np.maximum(ev, 1e-12))) @ vec.T
-
-
-def _n_params(mod: _Model) -> int:
-    """Free parameters of a group model (the direction's scale is not one)."""
-    m, l = mod.m, mod.l
-    return 2 * m + m * (l - 1) + _free_c(mod)[0].size + (l * (l + 1) // 2 if mod.noise else 0)
-
-
-def _information_se(p, mod: _Model, x, u, direction_scale, derivative: int = 0) -> np.ndarray:
-    """Standard errors of a group's frequencies (Hz), log damping ratios, direction angles (rad)
-    and log input levels (:func:`oma.output_only.whittle._input_level`) at its optimum ``p``,
-    shape (4, m): per parameter the larger of the model-based variance (the
-    inverse Fisher information, all parameters of the group jointly, its input covariance and
-    tails included) and the robust one (the sandwich ``J^-1 (sum_k g_k g_k^T) J^-1`` of the
-    bins' scores ``g_k``, which stays valid when the spectral model is misspecified: Huber 1967,
-    White 1982). The Whittle bins are asymptotically independent, so the bins' scores may be
-    summed as independent terms. ``u`` (m, l): the group's unit directions in its channels;
-    ``direction_scale`` (l,): the channels' scale to the signal's units, where the angle is
-    measured.
-
-    Why not the segment jackknife used before: measured on 20 records of each benchmark case
-    (docs/output_only.md), its damping intervals of the close 10.0 Hz mode covered 75-80 % (the
-    replicates, refitted from the full-record optimum, stay in its basin along the close pair's
-    ridge; 10 segments make the variance itself uncertain) and a few replicate sets collapsed to
-    zero width; these cover 90-100 % for every mode, at no refits.
-    """
-    m, l = mod.m, mod.l
-    jinv = np.linalg.pinv(_fisher(p, mod), rcond=1e-12, hermitian=True)
-    g = _nll(p, mod, x, per_bin=True)[1]
-    sandwich = jinv @ (g.T @ g) @ jinv
-    out = np.full((4, m), np.nan)
-    grad_level = _input_level(p, mod, derivative, direction_scale)[1]
-    f0, z0 = mod.ref
-    norms = _unpack(p, mod).norm  # of the raw direction vectors: their length is not identified
-    for cov in (jinv, sandwich):
-        var = np.maximum(np.diag(cov), 0.0)
-        out[0] = np.fmax(out[0], f0 * z0 * np.sqrt(var[:m]))
-        out[1] = np.fmax(out[1], np.sqrt(var[m:2 * m]))
-        for r in range(m):
-            # the raw direction vector v's covariance through w = D v / |D v| (D the channels'
-            # scale): dw/dv = (I - w w^T) D / |D v|, |D v| = |v| |D u|
-            i = 2 * m + r * l
-            du = direction_scale * u[r]
-            w = du / np.linalg.norm(du)
-            jac = (np.eye(l) - np.outer(w, w)) * direction_scale[None, :] / (np.linalg.norm(du) * norms[r])
-            angle_var = np.trace(jac @ cov[i:i + l, i:i + l] @ jac.T)
-            out[2, r] = np.fmax(out[2, r], np.sqrt(max(angle_var, 0.0)))
-        out[3] = np.fmax(out[3], np.sqrt(np.maximum(np.einsum("ri,ij,rj->r", grad_level, cov, grad_level), 0.0)))
-    return out
-
-
-def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0, np.inf)):
-    """The strongest response in a group's band that its fitted model does not explain: the score
-    test of adding one mode. Adding ``s a_k u u^T`` to the model spectrum ``S_k`` (``a_k`` the
-    gain-weighted squared response of a mode at ``f_c``, ``zeta_c``) changes ``-log L`` at ``s = 0``
-    by ``-s u^T (A - B) u`` with ``A = sum_k a_k S_k^-1 x_k x_k^H S_k^-1`` and
-    ``B = sum_k a_k S_k^-1``; under the fitted model ``E[A] = B``, so the largest generalised
-    eigenvalue ``r`` of ``(Re A, Re B)`` is about 1 plus noise of relative size ``1/sqrt(n_eff)``
-    (``n_eff = (sum a)^2 / sum a^2``, the bins the candidate's peak spans) and far above it where a
-    mode is missing. Scanned over ``f_c`` inside the band (the candidate's half-power band twice
-    over clear of the band's edges, where the tails of the modes outside belong), ``zeta_c`` the
-    group's median damping. Returns ``(r, n_eff, f_c, zeta_c, u)``, ``u`` the eigenvector in the
-    group's channels (unit), or None."""
-    pp = _unpack(p, mod)
-    s = _spectrum(p, mod)[-1]
-    sinv = np.linalg.inv(s)
-    y = (sinv @ x[:, :, None])[..., 0]
-    outer = np.real(y[:, :, None] * y[:, None, :].conj())
-    sinv_r = np.real(sinv)
-    zc = float(np.clip(np.median(pp.z), 0.01, 0.1))
-    lo = max(band[0], within[0], w.min() / (2 * np.pi)) / (1.0 - 2.0 * zc)
-    hi = min(band[1], within[1], w.max() / (2 * np.pi)) / (1.0 + 2.0 * zc)
-    if not hi > lo:
-        return None
-    best = None
-    for fc in np.linspace(lo, hi, n_freq):
-        d = _response(np.array([fc]), np.array([zc]), np.array([zc]), w)[:, 0]
-        a = mod.gain / np.abs(d) ** 2
-        a = a / a.sum()
-        amat = np.einsum("k,kij->ij", a, outer)
-        bmat = np.einsum("k,kij->ij", a, sinv_r)
-        try:
-            ev, vec = eigh(amat, bmat)
-        except np.linalg.LinAlgError:
-            continue
-        if best is None or ev[-1] > best[0]:
-            best = (float(ev[-1]), float(1.0 / np.sum(a ** 2)), float(fc), zc, vec[:, -1] / np.linalg.norm(vec[:, -1]))
-    return best
-
-
-def _mode_gain(fits, fit, j: int, x):
-    """The decrease of the group's negative log-likelihood that its mode ``j`` brings: the group
-    refitted without it on the same bins, both with the richest tail model fitted (coherent residual
-    terms: under a poorer one a spurious mode can stand in for the coherent tails). The refit starts
-    from the fit less the mode's term and runs :data:`EVIDENCE_ITER` steps: the gain errs on the
-    high side. None when the refit fails."""
-    ref = next((ft for ft in fits if ft[5].q and ft[5].coherent), fit)
-    mod0, p0 = _without_mode(ref[4], ref[5], j)
-    fun0 = _scoring(p0, mod0, x, max_iter=EVIDENCE_ITER, warm=0)[1]
-    return float(fun0 - ref[3]) if np.isfinite(fun0) and fun0 < 1e30 else None
-
-
-def _new_mode_apart(fit, g, f0, z0, lines) -> bool:
-    """Whether the last mode of a group's ``fit`` (one the scan added) is a mode of its own: not
-    another group's (outside twice their half-power bands), not a second copy of one of its
-    group's (:func:`oma.output_only.ssi.same_mode`, SSI's rule for its clusters: on real records a
-    peak that is not quite the model's shape leaves an excess beside it), not a milling line's
-    remainder (:func:`oma.output_only.harmonics.at_milling_line`, SSI's rule too)."""
-    f, z, u = fit[0], fit[1], fit[2]
-    fc, zc = f[-1], z[-1]
-    others = np.setdiff1d(np.arange(f0.size), g)
-    if np.any(np.abs(fc - f0[others]) < 2.0 * z0[others] * f0[others]):
-        return False
-    if np.any(same_mode(fc, u[-1], f[:-1], u[:-1].T)):
-        return False
-    return not at_milling_line(fc, zc, lines)[0]
 
 
 def band_groups(freq_hz, damping, *, half_width: float = 6.0, min_half_width_hz: float = 1.0) -> list[list[int]]:

@@ -453,7 +453,7 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
     computed).
 
     ``uncertainty``: ``'information'`` (default), the larger of the inverse Fisher information and
-    the sandwich at the optimum (:func:`oma.output_only.ml._information_se`); ``'jackknife'``, the
+    the sandwich at the optimum (:func:`oma.output_only._ml_inference._information_se`); ``'jackknife'``, the
     delete-one-segment jackknife of the refinement (the same segments as SSI's, each refitted from
     the full-record optimum), the method of rounds 1-2, kept for comparison (its damping intervals
     of the close pair covered 75-80 %, docs/output_only.md).
