@@ -22,7 +22,10 @@ Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
    resolves the modes (the H1 fit is reported when the time-domain fit misses the H1 estimate far
    more).
    No mode lies outside the band the records resolve: above 0.3 fs (the anti-alias roll-off) or
-   below 4 cycles in the longest record; a model that needed one there is not trusted.
+   below 4 cycles in the longest record; a model that needed one there is not trusted. The static
+   compliance of modes above the analysed band (a tool mode above 0.3 fs), flat in the H1
+   estimate beyond the model's modes, is estimated (:mod:`oma._upper_residual`); where it is
+   there, it is the model's residual compliance and the model is not trusted.
 6. Detectability: the smallest background variance the displacement sensor can resolve through the
    identified model, per axis (:mod:`oma.detectability`); an axis below it is flagged and the model
    is marked untrusted.
@@ -52,6 +55,7 @@ from .synthetic import simulate_response
 from .quantised import MIN_BLOCKS
 from .timefit import NoModeFound, TimeFit, fit_time_domain, resolved_band_hz
 from ._timefit_artefacts import MAX_TRUSTED_SHARE, fit_without_artefacts
+from ._upper_residual import UpperResidual, upper_residual
 
 __all__ = ["Identification", "identify", "modal_mapping", "frf_agreement", "METHODS", "ROBOT_BAND_HZ"]
 
@@ -126,7 +130,8 @@ class Identification:
         the H1 estimate (direct entries, weighted by the inverse random error, in the fitted
         band). Default method: the time-domain misfit of the displacement beyond the sensor's
         rounding noise (:attr:`oma.timefit.TimeFit.fit_error`), because the H1 estimate of
-        quantised displacement is itself biased.
+        quantised displacement is itself biased; it is that of the fit's modes, before a residual
+        compliance of modes above the band is added (:attr:`upper_residual`).
     noise_variance_N2 : ndarray, shape (3,)
         Background force variance per axis (harmonics removed, sensor noise subtracted), N^2.
     min_noise_variance_N2 : ndarray, shape (3,)
@@ -136,7 +141,8 @@ class Identification:
         (False for an axis without recorded motion).
     trusted : bool
         Every measured axis sufficiently excited, the fit converged and its errors are acceptable,
-        no mode was needed outside the band the records resolve, at most 2 % of a record's samples
+        no mode was needed outside the band the records resolve, the records show no compliance of
+        modes above the analysed band (:attr:`upper_residual`), at most 2 % of a record's samples
         were left out of the fit as artefacts, and (unrounded motion) the time-domain fit agrees
         with the H1 fit.
     harmonics : tuple of Harmonics
@@ -152,6 +158,11 @@ class Identification:
     background : tuple of BackgroundEstimate
         One per record.
     detectability : Detectability
+    upper_residual : UpperResidual
+        The flat compliance of the H1 estimate beyond the model's modes in the analysed band: the
+        static compliance of modes above it (:func:`oma._upper_residual.upper_residual`). Where it
+        is present the model carries it as its residual compliance (the H1 fit's own, for a model
+        from the H1 fit).
     """
 
     model: ModalModel
@@ -169,6 +180,7 @@ class Identification:
     time_fit: TimeFit | None = field(default=None, repr=False)
     background: tuple = field(default=(), repr=False)
     detectability: Detectability | None = field(default=None, repr=False)
+    upper_residual: UpperResidual | None = field(default=None, repr=False)
 
     def __post_init__(self):
         for name in ("frf_fit_error", "noise_variance_N2", "min_noise_variance_N2"):
@@ -195,6 +207,7 @@ class Identification:
             "harmonics": [h.to_dict() for h in self.harmonics],
             "warnings": list(self.warnings),
             "uncertainty": self.uncertainty(),
+            "upper_residual": None if self.upper_residual is None else self.upper_residual.to_dict(),
         }
 
     def standard_errors(self) -> tuple[np.ndarray, np.ndarray, int]:
@@ -462,6 +475,17 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     warnings += band_warnings
     band_ok = not band_warnings
 
+    # the static compliance of modes above the band, flat in the H1 estimate beyond the model's
+    # modes: where it is there it goes into the model (a time-domain fit has none), and the model
+    # is not trusted, since those modes' own dynamics are not in it
+    upper = upper_residual(model, est, weights, band)
+    added = bool(np.any(upper.present)) and not np.any(model.residual_compliance_m_N)
+    if added:
+        model = model.with_modes(residual_compliance_m_N=upper.model_compliance())
+    upper_warning = upper.warning(fs, added=added)
+    if upper_warning:
+        warnings.append(upper_warning)
+
     # fit error: for 'h1' the model against the H1 estimate (direct entries, weighted by the
     # inverse random error, in the fitted band); for the default the time-domain misfit beyond
     # the rounding noise (the H1 estimate itself is biased by the rounding, see oma.timefit)
@@ -534,6 +558,7 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     trusted = bool(
         fit_ok
         and band_ok
+        and upper_warning is None
         and clean
         and agree
         and all(sufficient[a] for a in measured_axes)
@@ -565,4 +590,5 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         time_fit=tfit,
         background=tuple(backgrounds),
         detectability=det,
+        upper_residual=upper,
     )

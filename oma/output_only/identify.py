@@ -21,9 +21,10 @@ from ..errors import RecordError
 from ..modal import ModalModel
 from ..record import Record
 from ..signals import window_slice
+from ..timefit import resolved_band_hz
 from .background import ANISOTROPY_LOG_SD, BackgroundLevel, background_level, scale_by_background
 from .modes import OutputOnlyModes, output_only_modes
-from .scaling import StiffnessScaling, scale_modes, tooth_force_harmonics, with_spindle
+from .scaling import StiffnessScaling, line_misfit, scale_modes, tooth_force_harmonics, with_spindle
 
 __all__ = ["OutputOnlyIdentification", "identify_output_only", "compare_models", "MOTION_QUANTITIES"]
 
@@ -33,6 +34,14 @@ LOW_DAMPING = 0.005
 #: Reduced chi-square of the response lines against the scaled model above which the lines are
 #: said to disagree with the force model (a warning) and the model is not trusted.
 MAX_LINE_MISFIT = 4.0
+#: The tooth-passing lines above those that scaled the modes (up to 0.3 fs) are said to carry the
+#: response of modes above the band when, against the scaled model's prediction, their reduced
+#: chi-square exceeds :data:`MAX_LINE_MISFIT` and on some axis ``||x - G F|| / ||G F||`` exceeds
+#: this (:func:`oma.output_only.scaling.line_misfit`). Measured on 20 s records of the example
+#: cell at 2700 rpm (lines at 180 and 270 Hz; tracker and acceleration, seeds 1-3): without modes
+#: above the band chi-square 0.8-1.9 (the ratio reaches 4 on Z, whose lines are noise there); with
+#: the example's tool modes (720 / 735 Hz) chi-square 56-5600 and the ratio 5.5-6.3 on X and Y.
+LINE_DISCREPANCY = 0.5
 AXES = ("X", "Y", "Z")
 
 
@@ -209,6 +218,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     background = None
     lines_scaling = None
     by_background = np.zeros(modes.n_modes, dtype=bool)
+    above = None
     if modes.n_modes == 0:
         warnings.append("no mode found in the response")
     else:
@@ -241,13 +251,17 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                 warnings.append(f"the response lines disagree with the force model by more than their noise "
                                 f"(reduced chi-square {stiffness.misfit:.1f}): coefficients, runout or a mode "
                                 "missing from the model")
+            above = _lines_above(records, slices, modes, quantity, axes, scaling, stiffness,
+                                 max_line_hz if max_line_hz is not None else 1.5 * band_hz[1], fs)
+            if above:
+                warnings.append(above)
     k = stiffness.stiffness_N_m if stiffness is not None else np.full(modes.n_modes, np.nan)
     names = [r.name or f"record {i}" for i, r in enumerate(records)]
     # lines the model does not explain (a mode too weak in the record for SSI to find, session 11:
     # a 17 Hz mode under a tracker's rounding, the other two scaled "trusted") are not trusted
     trusted = bool(modes.n_modes > 0 and stiffness is not None and not np.any(stiffness.too_far)
                    and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se))
-                   and not stiffness.misfit > MAX_LINE_MISFIT)
+                   and not stiffness.misfit > MAX_LINE_MISFIT and not above)
     if not trusted:
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     model = ModalModel(
@@ -286,15 +300,16 @@ def _background_warnings(background: BackgroundLevel, modes: OutputOnlyModes, st
     return out
 
 
-def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coef_sd, level, max_line_hz,
-           direction_sd):
-    """Per-record lines and forces, then :func:`scale_modes`; (None, reason) when impossible."""
+def _lines(records, slices, modes: OutputOnlyModes, quantity, scaling, select):
+    """Per record with lines chosen by ``select(harmonics)`` (a mask): the indices of those
+    records, and their lines' displacement amplitudes, noise, force, frequencies and spindle
+    orders; ``(None, reason)`` when the force is not known."""
     order = {"displacement": 0, "velocity": 1, "acceleration": 2}[quantity]
-    response, noise, force, lines, orders = [], [], [], [], []
-    for r, sl, h in zip(records, slices, modes.harmonics):
+    which, response, noise, force, lines, orders = [], [], [], [], [], []
+    for i, (r, sl, h) in enumerate(zip(records, slices, modes.harmonics)):
         if h.freq_hz.size == 0:
             continue
-        use = h.tooth_passing & h.significant & (h.freq_hz <= max_line_hz) & ~h.aliased
+        use = select(h)
         if not np.any(use):
             continue
         hz = h.freq_hz[use]
@@ -322,8 +337,24 @@ def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coe
             amp = (cf[2::2] - 1j * cf[3::2]).T
             force.append(amp[:, use])
             h_orders = np.zeros_like(h_orders)  # measured force: same clock, no unknown angle
+        which.append(i)
         lines.append(hz)
         orders.append(h_orders)
+    return (which, response, noise, force, lines, orders), ""
+
+
+def _scaling_lines(max_line_hz):
+    """The lines that scale the modes: significant tooth-passing lines up to ``max_line_hz``."""
+    return lambda h: h.tooth_passing & h.significant & (h.freq_hz <= max_line_hz) & ~h.aliased
+
+
+def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coef_sd, level, max_line_hz,
+           direction_sd):
+    """Per-record lines and forces, then :func:`scale_modes`; (None, reason) when impossible."""
+    got, why = _lines(records, slices, modes, quantity, scaling, _scaling_lines(max_line_hz))
+    if got is None:
+        return None, why
+    _, response, noise, force, lines, orders = got
     if not response:
         return None, "no tooth-passing line stands out of the response (no harmonics to scale with)"
     result = scale_modes(modes.freq_hz, modes.damping_ratio, modes.directions, response, noise, force, lines, orders,
@@ -332,6 +363,46 @@ def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coe
                          coefficient_relative_sd=coef_sd if scaling == "force_model" else 0.0, level=level,
                          direction_sd=direction_sd)
     return result, ""
+
+
+def _lines_above(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, stiffness: StiffnessScaling,
+                 max_line_hz, fs) -> str | None:
+    """The warning when the significant tooth-passing lines above those that scaled the modes (up
+    to :func:`oma.timefit.resolved_band_hz`) disagree with the scaled modes' prediction
+    (:func:`oma.output_only.scaling.line_misfit`: :data:`MAX_LINE_MISFIT` and
+    :data:`LINE_DISCREPANCY`): response of modes above the band, which the lines that scaled the
+    modes carry too; None when they agree or there are none."""
+    top = resolved_band_hz(fs)
+    got, _ = _lines(records, slices, modes, quantity, scaling,
+                    lambda h: h.tooth_passing & h.significant & (h.freq_hz > max_line_hz) & (h.freq_hz <= top)
+                    & ~h.aliased)
+    scaled, _ = _lines(records, slices, modes, quantity, scaling, _scaling_lines(max_line_hz))
+    if got is None or scaled is None or not got[0]:
+        return None
+    # the spindle angle of each record as the scaling found it (records without scaling lines: none)
+    theta = {i: th for i, th in zip(scaled[0], stiffness.theta_rad)}
+    keep = [j for j, i in enumerate(got[0]) if i in theta]
+    if not keep:
+        return None
+    response, noise, force, lines, orders = ([part[j] for j in keep] for part in got[1:])
+    misfit, discrepancy = line_misfit(stiffness, modes.freq_hz, modes.damping_ratio, response, noise, force, lines,
+                                      orders, [theta[got[0][j]] for j in keep], axes=axes,
+                                      freq_se_hz=modes.freq_se_hz, damping_se=modes.damping_se,
+                                      direction_se_rad=modes.direction_se_rad)
+    off = np.nan_to_num(discrepancy, nan=0.0, posinf=np.inf) > LINE_DISCREPANCY
+    if not (misfit > MAX_LINE_MISFIT and np.any(off)):
+        return None
+    measured = [AXES[a] for a in range(3) if axes[a]]
+    worst = ", ".join(f"{v:.2g} ({a})" if np.isfinite(v) else f"unbounded ({a})"
+                      for a, v, o in zip(measured, discrepancy, off) if o)
+    hz = ", ".join(f"{v:.0f}" for v in np.unique(np.round(np.concatenate(lines))))
+    return (f"the tooth-passing lines above those that scaled the modes ({hz} Hz) disagree with the scaled model "
+            f"(reduced chi-square {misfit:.0f}; their difference from its prediction is {worst} times the "
+            "prediction): the response of modes above the band (spindle and tool modes, above "
+            f"{top:.0f} Hz, which records sampled at {fs:g} Hz cannot resolve), whose static compliance also loads "
+            "the lines that scaled the modes: the stiffnesses are not reliable. Scale with the measured force "
+            "(identify without --output-only, which estimates that compliance) and add those modes from a "
+            "tool-tip tap test (tool_mode.yaml)")
 
 
 def compare_models(output_only: ModalModel, reference: ModalModel, *, standard_errors=None,

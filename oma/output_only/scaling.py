@@ -35,7 +35,7 @@ from .._arrays import readonly as _ro
 from ..cutting import CuttingCoefficients, Cut, Tool
 from ..synthetic import milling_force
 
-__all__ = ["tooth_force_harmonics", "StiffnessScaling", "scale_modes"]
+__all__ = ["tooth_force_harmonics", "StiffnessScaling", "scale_modes", "line_misfit"]
 
 #: A mode whose statistical relative standard uncertainty of stiffness exceeds this is called
 #: too weakly excited by the harmonics to be scaled (the harmonics are too far from it).
@@ -301,6 +301,76 @@ def scale_modes(freq_hz, damping_ratio, directions, response, noise, force, line
         relative_sd=total, interval_N_m=interval, theta_rad=theta, lines_hz=np.concatenate(lines_hz),
         misfit=float(misfit), too_far=~(stat <= MAX_SCALING_UNCERTAINTY), directions=u,
     )
+
+
+def line_misfit(scaling: StiffnessScaling, freq_hz, damping_ratio, response, noise, force, lines_hz, orders,
+                theta_rad, *, axes=None, freq_se_hz=None, damping_se=None, direction_se_rad=None, n_draws: int = 40,
+                rng=0) -> tuple[float, np.ndarray]:
+    """How well the scaled modes predict response lines that did not scale them.
+
+    Parameters
+    ----------
+    scaling : StiffnessScaling
+        Stiffnesses (a mode it could not scale contributes nothing), their statistical relative
+        uncertainty, and directions.
+    freq_hz, damping_ratio : array_like, shape (m,)
+    response, noise, force, lines_hz, orders :
+        As for :func:`scale_modes`: the other lines.
+    theta_rad : sequence of float
+        Spindle angle at each of these records' start (``scaling.theta_rad`` of the same records).
+    axes : array_like of bool, shape (3,), optional
+    freq_se_hz, damping_se, direction_se_rad : array_like, shape (m,), optional
+        The modes' standard errors, drawn with the stiffnesses' (``n_draws``, seeded ``rng``) as
+        in :func:`scale_modes`.
+
+    Returns
+    -------
+    misfit : float
+        ``|x - G F|^2 / v`` averaged over the lines, ``v`` the line's noise variance plus the
+        variance of the prediction over the draws of the modes' errors (effective variance, as in
+        :func:`scale_modes`; a stiffness's relative error is taken as at most 100 %: a mode
+        scaled with an unbounded one may contribute anything up to its prediction); 1: the lines
+        agree with the model (nothing is fitted to them).
+    discrepancy : ndarray, shape (l,)
+        Per measured axis, ``||x - G F|| / ||G F||`` over the lines.
+    """
+    f = np.asarray(freq_hz, dtype=float)
+    z = np.asarray(damping_ratio, dtype=float)
+    axes = np.ones(3, bool) if axes is None else np.asarray(axes, bool)
+    if scaling.directions is None:
+        raise ValueError("the scaling carries no directions")
+    u = np.asarray(scaling.directions, dtype=float)
+    lines_hz = [np.asarray(v, dtype=float) for v in lines_hz]
+    orders = [np.asarray(v, dtype=int) for v in orders]
+    theta = np.asarray(theta_rad, dtype=float)
+    x = np.concatenate([np.asarray(r, dtype=complex).ravel() for r in response])
+    sd = np.concatenate([np.asarray(s, dtype=float).ravel() for s in noise])
+    c = np.where(np.isfinite(scaling.stiffness_N_m), 1.0 / scaling.stiffness_N_m, 0.0)
+    pred = _design(f, z, u, force, lines_hz, orders, theta, axes) @ c
+    rel = np.where(c > 0, np.minimum(np.nan_to_num(scaling.statistical_relative_sd, nan=np.inf), 1.0), 0.0)
+    gen = np.random.default_rng(rng)
+    fse = np.zeros(f.size) if freq_se_hz is None else np.nan_to_num(np.asarray(freq_se_hz, dtype=float))
+    zse = np.zeros(f.size) if damping_se is None else np.nan_to_num(np.asarray(damping_se, dtype=float))
+    use = np.zeros(f.size) if direction_se_rad is None else np.nan_to_num(np.asarray(direction_se_rad, float))
+    tangent = _tangent_basis(u)
+    draws = []
+    for _ in range(n_draws):
+        fd = f + fse * gen.standard_normal(f.size)
+        zd = np.clip(z + zse * gen.standard_normal(f.size), 1e-4, None)
+        tilt = np.einsum("mk,mkj->mj", gen.standard_normal((f.size, 2)) * (use / np.sqrt(2.0))[:, None], tangent)
+        ud = u + tilt
+        ud /= np.linalg.norm(ud, axis=1, keepdims=True)
+        cd = c * np.exp(rel * gen.standard_normal(f.size))
+        draws.append(_design(fd, zd, ud, force, lines_hz, orders, theta, axes) @ cd)
+    spread = np.mean(np.abs(np.array(draws) - pred[None, :]) ** 2, axis=0) if draws else 0.0
+    var = sd ** 2 + spread
+    misfit = float(np.mean(np.abs(x - pred) ** 2 / np.maximum(var, np.finfo(float).tiny)))
+    l = int(np.sum(axes))
+    axis_of_row = np.concatenate([np.repeat(np.arange(l), v.size) for v in lines_hz])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        discrepancy = np.array([np.linalg.norm((x - pred)[axis_of_row == a]) / np.linalg.norm(pred[axis_of_row == a])
+                                for a in range(l)])
+    return misfit, discrepancy
 
 
 def _tangent_basis(u):
