@@ -13,9 +13,8 @@
   at the tool tip, and its largest magnitude on the whole finished wall (formats.md), where the
   slice at height ``z`` is finished ``kappa z / Omega`` after the tip, so harmonic ``h`` turns by
   ``exp(i h N kappa z)`` (the profile of :func:`stability.forced.forced_response`). The largest
-  ``|SLE|`` over ``0 <= z <= depth``: a grid of ``_WALL_POINTS_PER_TURN`` heights per turn of the
-  highest harmonic summed (the tip and the top included), then Newton steps on ``dSLE/dz = 0``
-  from its two largest local maxima, each kept between its neighbours on the grid.
+  ``|SLE|`` over ``0 <= z <= depth``: :func:`planner.wall.wall_maxima`, vectorised over the groups
+  (the search ``plan`` and ``predict`` use too).
 """
 
 from __future__ import annotations
@@ -27,19 +26,13 @@ import numpy as np
 from oma.cutting import Cut, CuttingCoefficients, Tool, engagement_angles
 from stability.oriented import engaged_axial_integral, force_coefficients, helix_lag_per_m, torque_coefficients
 
+from .wall import wall_maxima
+
 __all__ = ["force_shapes", "surface_errors"]
 
 _TWO_PI = 2.0 * math.pi
 #: Angles of the peak-force search, as in ``stability.forced`` (grid over a tooth pitch).
 _PEAK_GRID = 4096
-#: Heights of the wall search per turn of the highest harmonic over the depth (a sampled maximum
-#: within ~(pi / 8)^2 / 2 of that harmonic's amplitude; Newton then converges from it).
-_WALL_POINTS_PER_TURN = 8
-#: Most heights of the wall search per forced group, and Newton steps from each candidate.
-_WALL_MAX_POINTS = 4097
-_WALL_NEWTON = 5
-#: Complex values per block of the wall search (groups x heights).
-_WALL_BLOCK = 2**18
 
 
 def _exp_integrals(st: float, ex: float, nu: np.ndarray) -> np.ndarray:
@@ -170,62 +163,6 @@ def _peak_forces(tool: Tool, cut: Cut, fc: np.ndarray, depths: np.ndarray, strai
     return out
 
 
-def _harmonic_sum(a, p):
-    """``sum_h a_h p^h`` (h = 1..H) by Horner's rule: a (G, H), p (G, K); (G, K)."""
-    total = np.zeros(p.shape, dtype=complex)
-    for h in range(a.shape[1], 0, -1):
-        total += a[:, h - 1, None]
-        total *= p
-    return total
-
-
-def _harmonic_sums(a, p):
-    """``sum_h h^k a_h p^h`` for k = 0, 1, 2 (h = 1..H): a (G, H), p (G, K); each (G, K)."""
-    s0, s1, s2 = (np.zeros(p.shape, dtype=complex) for _ in range(3))
-    pw = np.ones(p.shape, dtype=complex)
-    for h in range(1, a.shape[1] + 1):
-        pw *= p
-        term = a[:, h - 1, None] * pw
-        s0 += term
-        s1 += h * term
-        s2 += (h * h) * term
-    return s0, s1, s2
-
-
-def _wall_maxima(a, static, theta_1: float, depth, n_harm):
-    """Largest ``|static + 2 Re sum_h a_h exp(i h theta_1 z)|`` over ``0 <= z <= depth`` per row
-    and its height ``z``, m (module docstring). a (G, H) complex, static, depth, n_harm (G,)."""
-    g = a.shape[0]
-    best, at = np.empty(g), np.zeros(g)
-    turns = n_harm * theta_1 * depth / _TWO_PI
-    n = int(np.clip(np.ceil(_WALL_POINTS_PER_TURN * turns.max(initial=0.0)) + 1, 9, _WALL_MAX_POINTS))
-    frac = np.linspace(0.0, 1.0, n)
-    step = max(1, _WALL_BLOCK // n)
-    for j0 in range(0, g, step):
-        s = slice(j0, min(g, j0 + step))
-        aa, st, d = a[s], static[s], depth[s]
-        z = d[:, None] * frac[None, :]  # (G, n): the tip and the top included
-        v = np.abs(st[:, None] + 2.0 * _harmonic_sum(aa, np.exp(1j * theta_1 * z)).real)
-        pad = np.pad(v, ((0, 0), (1, 1)), constant_values=-np.inf)
-        local = np.where((v >= pad[:, :-2]) & (v >= pad[:, 2:]), v, -np.inf)
-        cand = np.argsort(local, axis=1)[:, -2:]  # the two largest local maxima (G, 2)
-        rows = np.arange(cand.shape[0])[:, None]
-        zc, vc = z[rows, cand], v[rows, cand]
-        lo, hi = z[rows, np.maximum(cand - 1, 0)], z[rows, np.minimum(cand + 1, n - 1)]
-        for _ in range(_WALL_NEWTON):  # on dSLE/dz = 0, within the neighbours; only towards a peak
-            s0, s1, s2 = _harmonic_sums(aa, np.exp(1j * theta_1 * zc))
-            f = st[:, None] + 2.0 * s0.real
-            d1, d2 = -2.0 * theta_1 * s1.imag, -2.0 * theta_1**2 * s2.real
-            peak = f * d2 < 0.0
-            zc = np.where(peak, np.clip(zc - d1 / np.where(peak, d2, 1.0), lo, hi), zc)
-        vn = np.abs(st[:, None] + 2.0 * _harmonic_sum(aa, np.exp(1j * theta_1 * zc)).real)
-        better = vn > vc  # never below the sampled maximum
-        vc, zc = np.where(better, vn, vc), np.where(better, zc, z[rows, cand])
-        k = np.argmax(vc, axis=1)
-        best[s], at[s] = vc[rows[:, 0], k], zc[rows[:, 0], k]
-    return best, at
-
-
 def surface_errors(tool, models, frames, unit_h, fg_model, fg_frame, fg_eng, fg_depth, fg_rpm, fg_harm, fg_sign):
     """Surface location error of every forced group (vectorised, chunked): at the tool tip,
     ``sign n . (G(0) F_0 + 2 Re sum_h G(h f_T) F_h exp(i h N phi_fin))`` (stability.forced), with
@@ -265,11 +202,9 @@ def surface_errors(tool, models, frames, unit_h, fg_model, fg_frame, fg_eng, fg_
         x_h = np.sum(v[:, :, 1, None] * proj[:, :, 1:] * modal, axis=1) + np.einsum("gk,gkh->gh", res_n, c[:, :, 1:])
         phase = np.where(fg_sign[s][:, None] > 0, (-1.0) ** (h[None, :] * teeth), 1.0)  # exp(i h N phi_fin)
         keep = h[None, :] <= fg_harm[s][:, None]
-        out[s] = fg_sign[s] * (static + 2.0 * np.sum(np.where(keep, (x_h * phase).real, 0.0), axis=1))
-        wall[s] = np.abs(out[s])
-        helix = np.flatnonzero(np.abs(theta_1 / teeth * fg_depth[s]) >= _STRAIGHT_LAG_RAD)
-        if helix.size:  # straight flutes finish every height at the tip's instant
-            w, z = _wall_maxima(np.where(keep, x_h * phase, 0.0)[helix], static[helix], theta_1,
-                                fg_depth[s][helix], fg_harm[s][helix])
-            wall[s][helix], height[s][helix] = np.maximum(w, wall[s][helix]), z
+        amp = fg_sign[s][:, None] * np.where(keep, x_h * phase, 0.0)  # signed as the SLE
+        out[s] = fg_sign[s] * static + 2.0 * np.sum(amp.real, axis=1)
+        # straight flutes finish every height at the tip's instant (wall_maxima: the tip's, at 0)
+        value, height[s] = wall_maxima(amp, fg_sign[s] * static, theta_1, fg_depth[s], fg_harm[s])
+        wall[s] = np.abs(value)
     return out, wall, height

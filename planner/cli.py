@@ -67,6 +67,7 @@ def _cmd_lobes(args) -> int:
 
 
 def _cmd_predict(args) -> int:
+    from planner.wall import wall_extremum
     from stability.lobes import predict_point
     from stability.setup_io import read_setup
 
@@ -77,12 +78,16 @@ def _cmd_predict(args) -> int:
             raise UsageError(option, "a positive number", repr(value))
     point = predict_point(structure, setup.tool, setup.cut, coefficients(setup, args.setup),
                           spindle_rpm=args.rpm, axial_depth_m=args.depth, method=args.method)
+    # formats.md's limit bounds |SLE| on the whole finished wall, not at the tip: where it is largest
+    wall_m, wall_height_m = wall_extremum(point, setup.tool, setup.cut)
     payload = point.to_dict()
+    payload.update(surface_error_max_m=wall_m, surface_error_max_height_m=wall_height_m)
     emit(args, payload, lambda p: "\n".join([
         f"{'stable' if p['stable'] else 'CHATTER'} at {args.rpm:.0f} rpm, depth {1e3 * args.depth:.3f} mm "
         f"(limit {1e3 * point.depth_limit_m:.3f} mm, {args.method})",
-        f"surface location error {1e6 * point.surface_location_error_m:+.1f} um, peak force "
-        f"{point.peak_force_N:.0f} N, power {point.power_W:.0f} W, MRR {1e6 * point.mrr_m3_s:.2f} cm^3/s"]))
+        f"surface location error {1e6 * point.surface_location_error_m:+.1f} um at the tool tip, "
+        f"{1e6 * wall_m:+.1f} um on the wall at z = {1e3 * wall_height_m:.2f} mm (largest |SLE|)",
+        f"peak force {point.peak_force_N:.0f} N, power {point.power_W:.0f} W, MRR {1e6 * point.mrr_m3_s:.2f} cm^3/s"]))
     return EXIT_OK
 
 

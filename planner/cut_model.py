@@ -14,7 +14,7 @@ use them (NumPy or CasADi).
   ``exp(i h N kappa z)`` there (the profile of :func:`stability.forced.forced_response`). Hence
   ``SLE(z) = fz S_c(n, ap, z) + S_e(n, ap, z)`` with no interpolation in ``n``, ``ap`` or ``z``:
   :meth:`CutModel.wall_parts`, :meth:`CutModel.wall_function`, :meth:`CutModel.wall_profile`,
-  :meth:`CutModel.wall_max`.
+  :meth:`CutModel.wall_max` (the largest ``|SLE|``: the search of :func:`planner.wall.wall_maxima`).
 * **Peak force** does not depend on speed, and at one depth it is convex in feed (the largest over
   the angle of ``|F_e + fz F_c|``): the largest feed ``B(ap)`` with the peak within the limit is
   exact per depth (:meth:`CutModel.feed_bound`), the smallest over the angles of the root of a
@@ -41,7 +41,7 @@ from oma.cutting import engagement_angles
 from stability.forced import default_harmonics
 from stability.oriented import engaged_axial_integral, force_coefficients, helix_lag_per_m, torque_coefficients
 
-from .wall import largest_abs, wall_points
+from .wall import wall_maxima
 
 __all__ = ["CutModel"]
 
@@ -279,9 +279,13 @@ class CutModel:
 
     def wall_max(self, x, n_harm: int) -> tuple[float, float]:
         """Largest ``|SLE|`` on the wall at one cut ``x = (rpm, ap, fz)``, m, and its height as a
-        fraction of the depth (:func:`planner.wall.largest_abs` on :meth:`wall_profile`)."""
-        n = wall_points(n_harm, self.teeth * self.kappa, float(x[1]))
-        return largest_abs(self.wall_profile(x, n_harm), 0.0, 1.0, n)
+        fraction of the depth: :func:`planner.wall.wall_maxima` (the search of ``check`` and
+        ``predict``) on the sums of :meth:`wall_profile`."""
+        rpm, ap, fz = (float(v) for v in x)
+        static, amp, theta = self._wall_amplitudes(n_harm, [rpm], [[ap]])
+        value, height = wall_maxima((fz * amp[0, 0, 0] + amp[1, 0, 0])[None, :], [(fz * static[0] + static[1]) * ap],
+                                    float(theta[0]) if theta.size else 0.0, [ap])
+        return abs(float(value[0])), float(height[0]) / ap
 
     def wall_function(self, n_harm: int, slots: int) -> ca.Function:
         """``(rpm, ap, frac[slots]) -> (S_c, S_e)`` at heights ``frac * ap`` (CasADi, the sums of
