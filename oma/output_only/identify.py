@@ -23,6 +23,7 @@ from ..record import Record
 from ..signals import window_slice
 from ..timefit import resolved_band_hz
 from .background import ANISOTROPY_LOG_SD, BackgroundLevel, background_level, scale_by_background
+from .harmonics import STEADY_SEGMENTS, cutting_window, strongest_line_hz
 from .modes import OutputOnlyModes, output_only_modes
 from .scaling import StiffnessScaling, line_misfit, scale_modes, tooth_force_harmonics, with_spindle
 
@@ -191,6 +192,21 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     warnings: list[str] = []
     rpm = [r.cut.spindle_rpm for r in records]
     teeth = [r.tool.teeth for r in records]
+    # a record that does not cut throughout (entry, exit; no window_s given): the tooth lines'
+    # amplitude is that of the cut only over part of it, so the lines and the modes are taken
+    # over the cut found from the tooth line's envelope (audit of session 15: +41-52 % stiffness)
+    for i, (r, v, z) in enumerate(zip(records, rpm, teeth)):
+        win = cutting_window(signals[i], fs, v, z) if v is not None and v > 0 else None
+        if win is None:
+            continue
+        a, b = win
+        start = slices[i].start or 0
+        signals[i] = signals[i][:, a:b]
+        slices[i] = slice(start + a, start + b)
+        t0 = float(r.time[0]) if r.n_samples else 0.0
+        warnings.append(f"{r.name or 'record'}: the tooth-passing line is present only from {t0 + (start + a) / fs:.2f} "
+                        f"to {t0 + (start + b) / fs:.2f} s of the record (the tool not cutting outside): modes and "
+                        "stiffness taken over that window; give cut.window_s to choose it")
     for r, v in zip(records, rpm):
         if v is None or not v > 0:
             warnings.append(f"{r.name or 'record'}: no spindle speed; milling harmonics not removed")
@@ -206,13 +222,26 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         raise RecordError(records[short].path, exc.field, exc.expected,
                           f"{signals[short].shape[1] / fs:.3g} s of cut window (record too short)") from None
     warnings += list(modes.warnings)
+    unsteady = [h for h in modes.harmonics if not h.steady]
+    for r, h in zip(records, modes.harmonics):
+        st = h.steadiness
+        if h.tracked:
+            warnings.append(f"{r.name or 'record'}: the spindle speed varied by {100 * h.speed_variation:.2f} % over "
+                            "the record; the milling lines were fitted as orders of the tracked spindle angle")
+        if not h.steady:
+            warnings.append(
+                f"{r.name or 'record'}: the tooth-passing line at {st['line_hz']:.1f} Hz is not steady over the "
+                f"record (its amplitude on {STEADY_SEGMENTS} segments spreads by {100 * st['spread']:.0f} %, the "
+                f"whole-record fit captures {100 * (1 - st['loss']):.0f} % of it): speed or cut not constant; the "
+                "stiffnesses are not reliable")
     if modes.rejected_hz.size:
         warnings.append("stable poles at milling lines taken for harmonics, not modes: "
                         + ", ".join(f"{f:.2f} Hz" for f in modes.rejected_hz))
     for f, z in zip(modes.freq_hz, modes.damping_ratio):
         if z < LOW_DAMPING:
-            warnings.append(f"mode at {f:.2f} Hz has {100 * z:.2f} % damping: a tone (a wandering harmonic, an "
-                            "electrical line) or a very lightly damped mode; robot modes have 2-10 %")
+            warnings.append(f"mode at {f:.2f} Hz has {100 * z:.2f} % damping: a tone, not a robot mode (robot modes "
+                            "have 2-10 %): chatter (a self-excited vibration near a mode, which also hides that "
+                            "mode), a milling line not removed, or an electrical line; the model is not trusted")
     stiffness = None
     used = "none"
     background = None
@@ -261,7 +290,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     # a 17 Hz mode under a tracker's rounding, the other two scaled "trusted") are not trusted
     trusted = bool(modes.n_modes > 0 and stiffness is not None and not np.any(stiffness.too_far)
                    and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se))
-                   and not stiffness.misfit > MAX_LINE_MISFIT and not above)
+                   and not stiffness.misfit > MAX_LINE_MISFIT and not above and not unsteady
+                   and not np.any(modes.damping_ratio < LOW_DAMPING))
     if not trusted:
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     model = ModalModel(
@@ -356,13 +386,37 @@ def _scale(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coe
         return None, why
     _, response, noise, force, lines, orders = got
     if not response:
-        return None, "no tooth-passing line stands out of the response (no harmonics to scale with)"
+        return None, _no_lines_reason(records, slices, modes)
     result = scale_modes(modes.freq_hz, modes.damping_ratio, modes.directions, response, noise, force, lines, orders,
                          axes=axes, freq_se_hz=modes.freq_se_hz, damping_se=modes.damping_se,
                          direction_se_rad=modes.direction_se_rad,
                          coefficient_relative_sd=coef_sd if scaling == "force_model" else 0.0, level=level,
                          direction_sd=direction_sd)
     return result, ""
+
+
+def _no_lines_reason(records, slices, modes: OutputOnlyModes) -> str:
+    """Why no tooth-passing line scaled the modes: none in the response, or the strongest line
+    near the nominal tooth frequency is elsewhere (the record's rpm off by more than the +-5 %
+    search) or smeared (the speed varied too much to track)."""
+    for r, sl, h in zip(records, slices, modes.harmonics):
+        if not h.nominal_spindle_hz > 0:
+            continue
+        tooth_hz = h.nominal_spindle_hz * h.teeth
+        y = np.array(r.vector(next(q for q in MOTION_QUANTITIES if r.has(q)))[:, sl])
+        peak, width = strongest_line_hz(y, r.sample_rate_hz, tooth_hz)
+        if not np.isfinite(peak):
+            continue
+        off = peak / tooth_hz - 1.0
+        if abs(off) > 0.05:
+            return (f"no tooth-passing line at the nominal tooth frequency ({tooth_hz:.1f} Hz, "
+                    f"{60 * h.nominal_spindle_hz:.0f} rpm, {h.teeth} teeth); the strongest line near it lies at "
+                    f"{peak:.1f} Hz, {100 * off:+.1f} % from it: check the record's spindle_rpm")
+        if width > 2.0:
+            return (f"the strongest line near the tooth frequency ({peak:.1f} Hz, {100 * off:+.1f} % from the nominal "
+                    f"{tooth_hz:.1f} Hz) is smeared over {width:.1f} Hz: the spindle speed varied too much over the "
+                    "record to fit its lines; cut the record where the speed is steady (cut.window_s)")
+    return "no tooth-passing line stands out of the response (no harmonics to scale with)"
 
 
 def _lines_above(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, stiffness: StiffnessScaling,

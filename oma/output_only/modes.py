@@ -26,7 +26,8 @@ from scipy import stats
 from .._arrays import readonly as _ro
 from .._linalg import single_threaded_blas
 from ..signals import integrate_frequency_domain
-from .harmonics import ResponseHarmonics, at_milling_line, remove_response_harmonics
+from .harmonics import (HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE, ResponseHarmonics, at_milling_line,
+                        remove_response_harmonics)
 from .ml import band_groups, refine_modes_ml
 from .ssi import StabilisedModes, mac, match_modes, same_mode, segment_correlations, select_modes, ssi_poles
 from .uncertainty import jackknife, segment_bounds, t_interval
@@ -284,6 +285,13 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     keep = np.ones(sel.n_modes, dtype=bool)
     lines = np.concatenate([h.freq_hz for h in harmonics]) if harmonics else np.zeros(0)
     keep &= ~at_milling_line(sel.freq_hz, sel.damping_ratio, lines)
+    for h in harmonics:
+        # a tracked line (the speed varied by ``speed_variation``) leaves a remainder as wide as its
+        # wander: a pole within that of a line and damped less than a few times it is the line's
+        if h.tracked and h.freq_hz.size and sel.n_modes:
+            near = np.min(np.abs(h.freq_hz[None, :] / sel.freq_hz[:, None] - 1.0), axis=1)
+            keep &= ~((near < max(HARMONIC_TOLERANCE, h.speed_variation))
+                      & (sel.damping_ratio < max(HARMONIC_MAX_DAMPING, 4.0 * h.speed_variation)))
     harmonic = ~keep
     if len(views) > 1:
         keep &= _choose_views(sel.freq_hz, sel.damping_ratio, sel.support, view_all, keep)
