@@ -27,6 +27,8 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
     from it can throw a frequency across the band); a step moves no frequency by more than a
     quarter of its starting half-power width."""
     val, g = _nll(p, mod, x)
+    if not val < 1e30:   # a start whose model spectrum is singular (:func:`whittle._whitener`): no step from it
+        return p, val
     lam = 1e-3
     n_modal = 2 * mod.m + mod.m * mod.l
     age = 0
@@ -36,6 +38,8 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
         # after a rejected step); ``jm`` given: that of ``p``
         if jm is None or age >= reuse or (it == warm and warm > 0):
             jm, age = _fisher(p, mod), 0
+            if jm is None:
+                return p, val
         age += 1
         free = np.arange(p.size) if it >= warm else np.arange(n_modal, p.size)
         jf = jm[np.ix_(free, free)]
@@ -50,6 +54,8 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
             lam *= 10.0
             if age > 1:
                 jm, age = _fisher(p, mod), 1
+                if jm is None:
+                    return p, val
                 jf = jm[np.ix_(free, free)]
                 diag = np.maximum(np.diag(jf), 1e-12)
             if lam > 1e8:
@@ -114,6 +120,8 @@ def _initial(mod: _Model, f, z, u, x):
     parts = [np.zeros(m), np.log(z), u.T.ravel(), lc[_free_c(mod)]]
     if mod.noise:
         parts.append(ln[_tril(l)])
+    if mod.slope:
+        parts.append([0.0])   # a flat input to start
     return np.concatenate(parts)
 
 
@@ -133,7 +141,8 @@ def _known_tails(w, tails, scale):
     return (uu[None, :, :] / d[:, None, :]).astype(complex)
 
 
-def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, previous=None, tails=None):
+def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, previous=None, tails=None,
+               slope=False):
     """ML fit of one group of modes on the bins ``w``, ``x``: frequencies, damping, unit
     directions (m, l), the negative log-likelihood, the parameters and the model; None when the
     fit fails or is worse than its start. ``residuals``: the out-of-band modes' tails as residual
@@ -142,7 +151,9 @@ def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, pre
     residual terms is constant); ``'known'``: the columns ``tails`` (:func:`_known_tails`) plus
     a constant background; ``'background'``: the residual terms incoherent with the modes; else
     a constant background. ``previous``: (model, parameters) of a fit of a model nested in this
-    one, whose optimum starts this fit (:func:`_nested_start`). Fisher scoring
+    one, whose optimum starts this fit (:func:`_nested_start`). ``slope``: the input's level
+    varies as ``(w / w_c)^beta`` across the band, ``beta`` fitted with the rest (a coloured
+    background force; :mod:`oma.output_only.whittle`). Fisher scoring
     (Levenberg-damped) from linear least squares: on the benchmark records it reached the best
     optimum of the tried schemes (L-BFGS-B first stalled in the ill-conditioned covariance
     factors) at a third of the cost."""
@@ -154,7 +165,8 @@ def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, pre
         fx = _residual_columns(w, l) if residuals else np.zeros((w.size, l, 0), dtype=complex)
         noise = not residuals or derivative == 1
     mod = _Model(m, l, w, None, fx, noise,
-                 (np.asarray(f0, dtype=float), np.asarray(z0, dtype=float)), coherent=residuals != "background")
+                 (np.asarray(f0, dtype=float), np.asarray(z0, dtype=float)), coherent=residuals != "background",
+                 slope=bool(slope))
     if w.size * l < 4 * _n_params(mod):
         return None
     gain = w ** (2 * derivative)
@@ -202,6 +214,8 @@ def _nested_start(prev: _Model, p, mod: _Model):
     if mod.noise:
         ev, vec = np.linalg.eigh(n)
         parts.append(np.linalg.cholesky((vec * np.maximum(ev, 1e-6 * max(ev.max(), 1e-300))) @ vec.T)[_tril(l)])
+    if mod.slope:
+        parts.append([pp.beta])
     out = np.concatenate(parts)
     return out if np.all(np.isfinite(out)) else None
 
@@ -224,6 +238,8 @@ def _without_mode(p, mod: _Model, j: int):
     parts = [p[:m][rest], p[m:2 * m][rest], vraw.ravel(), lc[_free_c(new)]]
     if mod.noise:
         parts.append(pp.ln[_tril(l)])
+    if mod.slope:
+        parts.append([pp.beta])
     return new, np.concatenate(parts)
 
 
@@ -237,4 +253,4 @@ def _orthogonalised(u):
 def _n_params(mod: _Model) -> int:
     """Free parameters of a group model (the direction's scale is not one)."""
     m, l = mod.m, mod.l
-    return 2 * m + m * (l - 1) + _free_c(mod)[0].size + (l * (l + 1) // 2 if mod.noise else 0)
+    return 2 * m + m * (l - 1) + _free_c(mod)[0].size + (l * (l + 1) // 2 if mod.noise else 0) + int(mod.slope)

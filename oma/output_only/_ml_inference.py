@@ -14,7 +14,7 @@ from scipy.linalg import eigh
 from ._ml_fit import _scoring, _without_mode
 from .harmonics import at_milling_line
 from .ssi import same_mode
-from .whittle import _Model, _fisher, _input_level, _nll, _response, _spectrum, _unpack
+from .whittle import _Model, _fisher, _gain, _input_level, _nll, _response, _spectrum, _unpack
 
 __all__: list[str] = []
 
@@ -25,7 +25,7 @@ EVIDENCE_ITER = 6
 
 def _information_se(p, mod: _Model, x, u, direction_scale, derivative: int = 0) -> np.ndarray:
     """Standard errors of a group's frequencies (Hz), log damping ratios, direction angles (rad)
-    and log input levels (:func:`oma.output_only.whittle._input_level`) at its optimum ``p``,
+    and log input levels (:func:`oma.output_only.whittle._input_level`, at the mode's frequency) at its optimum ``p``,
     shape (4, m): per parameter the larger of the model-based variance (the
     inverse Fisher information, all parameters of the group jointly, its input covariance and
     tails included) and the robust one (the sandwich ``J^-1 (sum_k g_k g_k^T) J^-1`` of the
@@ -42,10 +42,13 @@ def _information_se(p, mod: _Model, x, u, direction_scale, derivative: int = 0) 
     zero width; these cover 90-100 % for every mode, at no refits.
     """
     m, l = mod.m, mod.l
-    jinv = np.linalg.pinv(_fisher(p, mod), rcond=1e-12, hermitian=True)
+    out = np.full((4, m), np.nan)
+    jm = _fisher(p, mod)
+    if jm is None:   # a singular model spectrum (not a fit :func:`_scoring` returns): no errors
+        return out
+    jinv = np.linalg.pinv(jm, rcond=1e-12, hermitian=True)
     g = _nll(p, mod, x, per_bin=True)[1]
     sandwich = jinv @ (g.T @ g) @ jinv
-    out = np.full((4, m), np.nan)
     grad_level = _input_level(p, mod, derivative, direction_scale)[1]
     f0, z0 = mod.ref
     norms = _unpack(p, mod).norm  # of the raw direction vectors: their length is not identified
@@ -80,6 +83,7 @@ def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0,
     group's channels (unit), or None."""
     pp = _unpack(p, mod)
     s = _spectrum(p, mod)[-1]
+    gain = _gain(pp, mod)
     sinv = np.linalg.inv(s)
     y = (sinv @ x[:, :, None])[..., 0]
     outer = np.real(y[:, :, None] * y[:, None, :].conj())
@@ -92,7 +96,7 @@ def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0,
     best = None
     for fc in np.linspace(lo, hi, n_freq):
         d = _response(np.array([fc]), np.array([zc]), np.array([zc]), w)[:, 0]
-        a = mod.gain / np.abs(d) ** 2
+        a = gain / np.abs(d) ** 2
         a = a / a.sum()
         amat = np.einsum("k,kij->ij", a, outer)
         bmat = np.einsum("k,kij->ij", a, sinv_r)

@@ -13,7 +13,8 @@ with the parametric output spectrum of real modes under a white input of unknown
 ``u_r`` real unit directions, ``C`` the (real, positive semi-definite) input covariance, ``N`` a
 constant positive-definite background and ``d`` the derivative order of the measured quantity
 (0 displacement, 1 velocity, 2 acceleration). Whittle (1953); for OMA: Pintelon, Guillaume &
-Schoukens, MSSP 21 (2007). The bins within 0.1 Hz of a regressed milling line are left out (the
+Schoukens, MSSP 21 (2007). The input need not be white across a group's band: by default
+(``input_slope``) ``C`` is ``C (w / w_c)^beta`` there, one slope ``beta`` per group (session 15). The bins within 0.1 Hz of a regressed milling line are left out (the
 regression notches them).
 
 The tails of the modes outside the band are modelled, per group, by a constant ``N`` or (chosen
@@ -110,7 +111,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     lines_hz=(), half_width: float = 6.0, min_half_width_hz: float = 1.0,
                     line_guard_hz: float = 0.1, max_iter: int = 40, evidence: dict | None = None,
                     segments=None, residual_terms="auto", direction_scale=None,
-                    add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf)):
+                    add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf), input_slope: bool = True):
     """Whittle-ML frequency, damping and direction of output-only modes (see the module docstring).
 
     Parameters
@@ -159,6 +160,13 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         None: no scan.
     band_hz : (float, float)
         The scan's candidates lie inside this band (the analysed one).
+    input_slope : bool
+        Fit the input's (background force's) level as ``(w / w_c)^beta`` across each group's band,
+        ``beta`` one more parameter of the group (default), instead of constant. Session 15: with
+        a force spectrum rising or falling as f^(+-1) the constant level biased the oblique
+        structure's damping by up to +56 % and frequencies by up to -2.9 %, outside their
+        intervals (docs/output_only.md, session 15). The slope has a Gaussian prior
+        (:data:`oma.output_only.whittle.SLOPE_PRIOR_SD`).
     residual_terms : {'auto', False, 'known', 'background', True} or a sequence of them
         The tails of the modes outside a group's band: a constant background (False); the
         responses of the other modes found (``'known'``: each ``u_j / D_j(w)`` at its estimated
@@ -190,8 +198,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         log input level; NaN where not fitted.
     input_level : ndarray, shape (m,)
         Each mode's input level in the channels times ``direction_scale``, as displacement
-        (:func:`oma.output_only.whittle._input_level`: ``E|u . F|^2 / k^2`` per Hz, two-sided);
-        NaN where not fitted.
+        (:func:`oma.output_only.whittle._input_level`: ``E|u . F|^2 / k^2`` per Hz, two-sided), at
+        the mode's frequency (with ``input_slope`` the level varies across the band); NaN where
+        not fitted.
     """
     f0 = np.asarray(freq_hz, dtype=float)
     z0 = np.asarray(damping, dtype=float)
@@ -248,7 +257,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     continue  # no mode outside the group: the constant background is the same model
                 tails = _known_tails(w, (f0[others], z0[others], u0[:, others]), scale)
             cands = [_fit_group(w, x, f0[g], z0[g], st, derivative, max_iter=max_iter, residuals=r, previous=prev,
-                                tails=tails)
+                                tails=tails, slope=input_slope)
                      for st in starts]
             cands = [ft for ft in cands if ft is not None]
             if cands:

@@ -319,8 +319,20 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     in_level, in_level_se = np.full(f_hat.size, np.nan), np.full(f_hat.size, np.nan)
     if ml_refine and f_hat.size:
         ev = {} if ml_evidence else None
+        options = {"band_hz": (lo, hi), **(ml_options or {})}
         out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
-                         uncertainty=uncertainty, **{"band_hz": (lo, hi), **(ml_options or {})})
+                         uncertainty=uncertainty, **options)
+        if options.get("input_slope", True) and _n_moved(out, f_hat, f_se):
+            # the sloped input level trades with a close pair's frequencies: where it moves a mode
+            # off SSI's (a misfit, below), the flat input is tried before SSI's values are kept
+            # (session 15: 1 of 10 records' Z mode beside X, which then lost its background scale)
+            ev_flat = {} if ml_evidence else None
+            flat = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev_flat,
+                              uncertainty=uncertainty, **{**options, "input_slope": False})
+            if _n_moved(flat, f_hat, f_se) < _n_moved(out, f_hat, f_se):
+                out, ev = flat, ev_flat
+                warnings.append("the refinement with a sloped background level moved a mode off SSI's frequency; "
+                                "the flat level was used (a white background force assumed)")
         n_new = out[0].size - f_hat.size
         if n_new:
             # modes the refinement's residual scan added (no SSI cluster): their "SSI" values are
@@ -451,6 +463,14 @@ def _reweight(x, fs, from_derivative, to_derivative, highpass_hz):
     spec = np.fft.rfft(x, axis=-1)
     w = 2 * np.pi * np.fft.rfftfreq(x.shape[-1], 1.0 / fs)
     return np.fft.irfft(spec * (1j * w) ** k, n=x.shape[-1], axis=-1)
+
+
+def _n_moved(out, f_ssi, f_se) -> int:
+    """How many of the SSI modes a refinement ``out`` moved by more than ``ML_MAX_SHIFT`` SSI
+    standard errors (taken for a misfit; the modes its scan added are not counted)."""
+    n = f_ssi.size
+    moved = np.abs(out[0][:n] - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
+    return int(np.sum(out[3][:n] & moved))
 
 
 def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=None,
