@@ -406,7 +406,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         zq = stats.norm.ppf(0.5 + 0.5 * level)
         k = from_information
         f_iv[k] = np.column_stack([f_hat[k] - zq * f_se[k], f_hat[k] + zq * f_se[k]])
-        log_se = z_se[k] / z_hat[k]
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero damping (a line, untrusted) has none
+            log_se = z_se[k] / z_hat[k]
         z_iv[k] = np.column_stack([z_hat[k] * np.exp(-zq * log_se), z_hat[k] * np.exp(zq * log_se)])
     return OutputOnlyModes(
         freq_hz=f_hat, damping_ratio=z_hat, freq_se_hz=f_se, damping_se=z_se,
