@@ -235,13 +235,7 @@ def scale_modes(freq_hz, damping_ratio, directions, response, noise, force, line
         fse = np.nan_to_num(np.asarray(freq_se_hz, dtype=float))
         zse = np.nan_to_num(np.asarray(damping_se, dtype=float))
         use = np.zeros(f.size) if direction_se_rad is None else np.nan_to_num(np.asarray(direction_se_rad, float))
-        tangent = _tangent_basis(u)
-        for _ in range(n_draws):
-            fd = f + fse * gen.standard_normal(f.size)
-            zd = np.clip(z + zse * gen.standard_normal(f.size), 1e-4, None)
-            tilt = np.einsum("mk,mkj->mj", gen.standard_normal((f.size, 2)) * (use / np.sqrt(2.0))[:, None], tangent)
-            ud = u + tilt
-            ud /= np.linalg.norm(ud, axis=1, keepdims=True)
+        for fd, zd, ud in _mode_draws(f, z, u, fse, zse, use, gen, n_draws):
             drawn.append(_design(fd, zd, ud, force, lines_hz, orders, theta, axes))
         drawn = np.array(drawn)
         # effective variance (Orear, Am. J. Phys. 50, 1982): a line's misfit is its noise and the
@@ -352,15 +346,9 @@ def line_misfit(scaling: StiffnessScaling, freq_hz, damping_ratio, response, noi
     fse = np.zeros(f.size) if freq_se_hz is None else np.nan_to_num(np.asarray(freq_se_hz, dtype=float))
     zse = np.zeros(f.size) if damping_se is None else np.nan_to_num(np.asarray(damping_se, dtype=float))
     use = np.zeros(f.size) if direction_se_rad is None else np.nan_to_num(np.asarray(direction_se_rad, float))
-    tangent = _tangent_basis(u)
     draws = []
-    for _ in range(n_draws):
-        fd = f + fse * gen.standard_normal(f.size)
-        zd = np.clip(z + zse * gen.standard_normal(f.size), 1e-4, None)
-        tilt = np.einsum("mk,mkj->mj", gen.standard_normal((f.size, 2)) * (use / np.sqrt(2.0))[:, None], tangent)
-        ud = u + tilt
-        ud /= np.linalg.norm(ud, axis=1, keepdims=True)
-        cd = c * np.exp(rel * gen.standard_normal(f.size))
+    for fd, zd, ud in _mode_draws(f, z, u, fse, zse, use, gen, n_draws):
+        cd = c * np.exp(rel * gen.standard_normal(f.size))  # drawn after each mode draw, from the same generator
         draws.append(_design(fd, zd, ud, force, lines_hz, orders, theta, axes) @ cd)
     spread = np.mean(np.abs(np.array(draws) - pred[None, :]) ** 2, axis=0) if draws else 0.0
     var = sd ** 2 + spread
@@ -371,6 +359,19 @@ def line_misfit(scaling: StiffnessScaling, freq_hz, damping_ratio, response, noi
         discrepancy = np.array([np.linalg.norm((x - pred)[axis_of_row == a]) / np.linalg.norm(pred[axis_of_row == a])
                                 for a in range(l)])
     return misfit, discrepancy
+
+
+def _mode_draws(f, z, u, freq_se, damping_se, direction_se, gen, n_draws: int):
+    """``n_draws`` draws of the modes' frequencies, damping and directions from their standard
+    errors (directions tilted in their tangent plane, renormalised), from the generator ``gen``."""
+    tangent = _tangent_basis(u)
+    for _ in range(n_draws):
+        fd = f + freq_se * gen.standard_normal(f.size)
+        zd = np.clip(z + damping_se * gen.standard_normal(f.size), 1e-4, None)
+        tilt = np.einsum("mk,mkj->mj", gen.standard_normal((f.size, 2)) * (direction_se / np.sqrt(2.0))[:, None],
+                         tangent)
+        ud = u + tilt
+        yield fd, zd, ud / np.linalg.norm(ud, axis=1, keepdims=True)
 
 
 def _tangent_basis(u):
