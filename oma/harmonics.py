@@ -371,13 +371,17 @@ def fit_harmonic_signal(x, sample_rate_hz: float, harmonic_hz, *, trend: bool = 
     return (basis @ coef).T
 
 
-def harmonic_basis(t, harmonic_hz, *, trend: bool = True) -> np.ndarray:
-    """Columns ``[1, t - mean(t), cos(2 pi f t), sin(2 pi f t) ...]`` at each harmonic, (n, n_cols)."""
+def harmonic_basis(t, harmonic_hz, *, trend: bool = True, phase_rad=None) -> np.ndarray:
+    """Columns ``[1, t - mean(t), cos(2 pi f t + p), sin(2 pi f t + p) ...]`` at each harmonic,
+    (n, n_cols); ``phase_rad`` (n_h, n), optional: each line's extra phase over time (the lines as
+    orders of a tracked spindle angle, :mod:`oma.output_only.harmonics`), 0 by default."""
     t = np.asarray(t, dtype=float)
+    hz = np.atleast_1d(harmonic_hz)
+    extra = np.zeros((hz.size, 1)) if phase_rad is None else np.asarray(phase_rad, dtype=float)
     cols = []
     if trend:
         cols += [np.ones_like(t), (t - t.mean()) / max(np.ptp(t), 1e-12)]
-    for fh in np.atleast_1d(harmonic_hz):
-        arg = 2.0 * np.pi * fh * t
+    for fh, ph in zip(hz, extra):
+        arg = 2.0 * np.pi * fh * t + ph
         cols += [np.cos(arg), np.sin(arg)]
     return np.column_stack(cols) if cols else np.zeros((t.size, 0))

@@ -112,6 +112,10 @@ class ResponseHarmonics:
         ``loss``, ``spread``; empty without lines).
     speed_variation : float
         Peak-to-peak relative variation of the tracked spindle speed (0 when not tracked).
+    line_phase_rad : ndarray, shape (n_h, n), or None
+        Each line's phase beyond ``2 pi f t`` over the record when tracked (the basis the lines
+        were fitted in, :func:`oma.harmonics.harmonic_basis`'s ``phase_rad``: a measured force's
+        lines are fitted in the same); None when not tracked.
     """
 
     spindle_hz: float
@@ -128,6 +132,7 @@ class ResponseHarmonics:
     steady: bool = True
     steadiness: dict = field(default_factory=dict, repr=False)
     speed_variation: float = 0.0
+    line_phase_rad: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
         object.__setattr__(self, "freq_hz", _ro(self.freq_hz))
@@ -137,6 +142,8 @@ class ResponseHarmonics:
         object.__setattr__(self, "significant", _ro(self.significant, bool))
         object.__setattr__(self, "residual", _ro(self.residual))
         object.__setattr__(self, "aliased", _ro(self.aliased, bool))
+        if self.line_phase_rad is not None:
+            object.__setattr__(self, "line_phase_rad", _ro(self.line_phase_rad))
 
     @property
     def found_hz(self) -> np.ndarray:
@@ -193,20 +200,20 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
         strongest = None  # no tooth line stands out (a wrong nominal speed): nothing to check or track
     steadiness = line_steadiness(y, t, freqs, None, orders, sign, strongest, fit[2][:, strongest]) \
         if strongest is not None else {}
-    tracked, variation = False, 0.0
+    tracked, variation, dphi = False, 0.0, None
     if steadiness and not steadiness["steady"] and steadiness["loss"] > STEADY_MAX_LOSS:
         # the phase wanders (a constant amplitude that changes over the record is not helped by it)
         got = _track_phase(y, fs, f0 * orders[strongest], int(orders[strongest]))
         if got is not None:
-            df0, dphi = got
+            df0, dphi_t = got
             f0_t = f0 + df0
             lines_t = _line_set(f0_t, teeth, fs, n, alias_up_to)
             if lines_t[0].size == freqs.size:
-                fit_t = _fit_lines(y, t, fs, lines_t[0], dphi, lines_t[3], lines_t[4], nperseg)
-                steady_t = line_steadiness(y, t, lines_t[0], dphi, lines_t[3], lines_t[4], strongest,
+                fit_t = _fit_lines(y, t, fs, lines_t[0], dphi_t, lines_t[3], lines_t[4], nperseg)
+                steady_t = line_steadiness(y, t, lines_t[0], dphi_t, lines_t[3], lines_t[4], strongest,
                                            fit_t[2][:, strongest])
                 if steady_t["loss"] < steadiness["loss"] and (steady_t["steady"] or steady_t["chi2"] < steadiness["chi2"]):
-                    fit, steadiness, tracked = fit_t, steady_t, True
+                    fit, steadiness, tracked, dphi = fit_t, steady_t, True, dphi_t
                     f0, (freqs, tooth, aliased, orders, sign) = f0_t, lines_t
                     rate = f0 + np.gradient(dphi, t) / (2.0 * np.pi)
                     variation = float(np.ptp(rate) / f0)
@@ -215,19 +222,19 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
     significant = np.any(snr ** 2 > 10.0 ** (threshold_db / 10.0), axis=0)
     return ResponseHarmonics(f0, nominal, int(teeth), freqs, tooth, amp, noise, significant, res, aliased,
                              tracked=tracked, steady=bool(steadiness.get("steady", True)), steadiness=steadiness,
-                             speed_variation=variation)
+                             speed_variation=variation, line_phase_rad=_line_phase(dphi, orders, sign))
+
+
+def _line_phase(dphi, orders, sign):
+    """Each line's phase beyond ``2 pi f t`` (n_h, n), rad, as an order of the tracked angle whose
+    deviation is ``dphi`` (folded lines with their sign); None when not tracked."""
+    return None if dphi is None else np.outer(np.asarray(sign) * np.asarray(orders), dphi)
 
 
 def _basis(t, freqs, dphi, orders, sign):
     """Trend and line columns; with ``dphi`` (spindle angle minus ``2 pi f0 t``, rad) the lines are
     orders of the tracked angle."""
-    if dphi is None:
-        return harmonic_basis(t, freqs, trend=True)
-    cols = [np.ones_like(t), (t - t.mean()) / max(np.ptp(t), 1e-12)]
-    for fh, k, sg in zip(freqs, orders, sign):
-        arg = 2.0 * np.pi * fh * t + sg * k * dphi
-        cols += [np.cos(arg), np.sin(arg)]
-    return np.column_stack(cols)
+    return harmonic_basis(t, freqs, trend=True, phase_rad=_line_phase(dphi, orders, sign))
 
 
 def _fit_lines(y, t, fs, freqs, dphi, orders, sign, nperseg):

@@ -362,7 +362,8 @@ def _lines(records, slices, modes: OutputOnlyModes, quantity, scaling, select):
             if np.any(np.all(np.isnan(f_rec), axis=1)):
                 return None, f"{r.name or 'record'} lacks force channels for measured_force scaling"
             t = np.arange(f_rec.shape[1]) / r.sample_rate_hz
-            basis = harmonic_basis(t, h.freq_hz, trend=True)
+            # in the basis the response's lines were fitted in (orders of the tracked spindle angle)
+            basis = harmonic_basis(t, h.freq_hz, trend=True, phase_rad=h.line_phase_rad)
             cf = lstsq_normal(basis, f_rec.T)
             amp = (cf[2::2] - 1j * cf[3::2]).T
             force.append(amp[:, use])
