@@ -125,7 +125,6 @@ def _initial(mod: _Model, f, z, u, x):
     return np.concatenate(parts)
 
 
-
 #: The tail model each richer one extends (its fit starts from that one's optimum).
 _TAIL_PARENT = {"known": False, "background": False, True: "background"}
 

@@ -431,11 +431,13 @@ def _lines_above(records, slices, modes: OutputOnlyModes, quantity, axes, scalin
     got, _ = _lines(records, slices, modes, quantity, scaling,
                     lambda h: h.tooth_passing & h.significant & (h.freq_hz > max_line_hz) & (h.freq_hz <= top)
                     & ~h.aliased)
-    scaled, _ = _lines(records, slices, modes, quantity, scaling, _scaling_lines(max_line_hz))
-    if got is None or scaled is None or not got[0]:
+    if got is None or not got[0]:
         return None
-    # the spindle angle of each record as the scaling found it (records without scaling lines: none)
-    theta = {i: th for i, th in zip(scaled[0], stiffness.theta_rad)}
+    # the spindle angle of each record as the scaling found it: ``theta_rad`` is per record with
+    # scaling lines, in order (those :func:`_lines` kept for :func:`_scale`; records without: none)
+    select = _scaling_lines(max_line_hz)
+    scaled = [i for i, h in enumerate(modes.harmonics) if h.freq_hz.size and np.any(select(h))]
+    theta = dict(zip(scaled, stiffness.theta_rad))
     keep = [j for j, i in enumerate(got[0]) if i in theta]
     if not keep:
         return None

@@ -5,7 +5,7 @@ vectors (normalised), the free entries of the Cholesky factors of the input cova
 ``C`` (modes, then residual terms) and of the constant background ``N``, and (``_Model.slope``)
 the input's spectral slope ``beta`` across the group's band: the input covariance at ``w`` is
 ``C (w / w_c)^beta``, ``w_c`` the band's geometric centre (a coloured background force: session
-16).
+15).
 """
 
 from __future__ import annotations
