@@ -28,6 +28,9 @@ HIGH_MISLABEL = 0.15
 #: Samples within this share of a table's range of its edge "press against" it; more than
 #: ``EDGE_SHARE`` of them: the fine table is rebuilt wider once, and a warning if they still do.
 EDGE_BAND, EDGE_SHARE = 0.02, 0.05
+#: The posterior "predicts worse than the prior" when its cross-validated log score of the marks is
+#: lower by more than this many paired standard errors (one-sided, about 2 %).
+WORSE_THAN_PRIOR_T = 2.0
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,10 @@ class LearnResult:
     #: apart by their own deviations (the prior's), measured at the checked samples; else empty.
     mode_spread_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
     mode_correlation: float = 1.0
+    #: Mean log score per mark of the prior's prediction and of the cross-validated posterior's,
+    #: each as a probability of the mark (with the likelihood's share of wrong marks).
+    log_score_before: float = float("nan")
+    log_score_after: float = float("nan")
 
     def suspect_labels(self, threshold: float = SUSPECT_LABEL) -> list[dict]:
         """Marks that are more likely wrong than right under the posterior (rows from 0)."""
@@ -73,6 +80,8 @@ class LearnResult:
         return {"parameters": parameters, "map_model": modal_model_to_dict(model),
                 "map_coefficients": {"Ktc_N_m2": coef.Ktc_N_m2, "Krc_N_m2": coef.Krc_N_m2},
                 "accuracy_before": self.accuracy_before, "accuracy_after": self.accuracy_after,
+                "log_score_before": _json_float(self.log_score_before),
+                "log_score_after": _json_float(self.log_score_after),
                 "cause": self.posterior.cause(), "warnings": list(self.warnings),
                 "likelihood": self.posterior.likelihood.to_dict(),
                 "samples": int(self.posterior.samples.shape[0]), "timings_s": self.timings_s,
@@ -86,6 +95,37 @@ class LearnResult:
                                 if self.mode_spread_error.size else None),
                 "table_error": {"median": float(np.median(self.model_error)) if self.model_error.size else 0.0,
                                 "max": float(np.max(self.model_error, initial=0.0))}}
+
+
+def _low_speed_stable_hint(cuts: CutTable, p_wrong: np.ndarray) -> str:
+    """A clause for the suspect-marks warning when the marks that look wrong are mostly cuts marked
+    stable where the posterior predicts chatter, at the low end of the cuts' speeds (at least 2,
+    and 3 in 4 of those read-stable suspects in the lowest third of the log-speed span): the
+    signature of process damping, which raises the limit at low speed and is not in the model.
+    Else ''.
+
+    A hint, not a test. Session 16 audit (30 random cuts, CLI likelihood): it names the process-
+    damping seed whose misfit was blamed on noisy marks (C = 2e5 N/m; 3 of its 4 read-stable
+    suspects under 9700 rpm over 6-24 krpm) and none of 7 exactly specified seeds, 10 with a mode
+    missing from the prior, 3 stepped designs or a drifting Kt (none has two read-stable suspects
+    at low speed). With random flips the suspects spread over the speeds (a third of them low).
+    """
+    suspect = np.nan_to_num(p_wrong) > SUSPECT_LABEL
+    stable = suspect & (cuts.outcome == STABLE)
+    if stable.sum() < 2:
+        return ""
+    log_s = np.log(cuts.spindle_rpm)
+    low = log_s <= log_s.min() + (log_s.max() - log_s.min()) / 3.0
+    n_low = int(np.sum(stable & low))
+    if n_low < 2 or n_low < 0.75 * stable.sum():
+        return ""
+    return (f". {n_low} marks that read stable where chatter is predicted look wrong at the low end of the speeds "
+            f"(up to {cuts.spindle_rpm[stable & low].max():.0f} rpm; {int(stable.sum())} such marks in all): process "
+            "damping, which raises the limit at low speed and is not in the model, would do that")
+
+
+def _json_float(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def _edge_shares(u: np.ndarray, table: LimitTable, sd: np.ndarray) -> dict:
@@ -143,6 +183,36 @@ def _accuracy(p_stable: np.ndarray, cuts: CutTable) -> float:
         return float("nan")
     right = (p_stable[sel] >= 0.5) == (cuts.outcome[sel] == STABLE)
     return float(np.average(right, weights=cuts.weight[sel]))
+
+
+def _paired_log_score(p_post: np.ndarray, p_prior: np.ndarray, cuts: CutTable, mislabel: float
+                      ) -> tuple[float, float, float]:
+    """Mean log score per stable/chatter mark of two predictions (P(stable) of each cut: the
+    posterior's cross-validated, the prior's) and the paired t statistic of their difference.
+
+    Each prediction is scored as a probability of the *mark* (``eps + (1 - 2 eps) p`` for
+    'stable', ``eps`` the likelihood's share of wrong marks): a mark the model cannot explain
+    costs at most ``log eps``, as in the likelihood, and one wrong mark does not decide the
+    comparison. Marks are weighted by their weights. NaN when fewer than 3 marks or no spread.
+    """
+    sel = ((cuts.outcome == STABLE) | (cuts.outcome == CHATTER)) & (cuts.weight > 0)
+    if sel.sum() < 3:
+        return float("nan"), float("nan"), float("nan")
+    eps = float(mislabel)
+    stable = cuts.outcome[sel] == STABLE
+    w = cuts.weight[sel] / np.sum(cuts.weight[sel])
+
+    def score(p):
+        q = eps + (1.0 - 2.0 * eps) * np.clip(p[sel], 0.0, 1.0)
+        return np.log(np.maximum(np.where(stable, q, 1.0 - q), 1e-12))
+
+    a, b = score(p_post), score(p_prior)
+    d = a - b
+    mean = float(np.sum(w * d))
+    n_eff = 1.0 / float(np.sum(w ** 2))
+    se = float(np.sqrt(np.sum(w * (d - mean) ** 2) / max(n_eff - 1.0, 1.0)))
+    t = mean / se if se > 0 else (0.0 if mean == 0 else float("inf") * np.sign(mean))
+    return float(np.sum(w * a)), float(np.sum(w * b)), float(t)
 
 
 def mislabel_probability(p_stable_each: np.ndarray, mislabel: np.ndarray, cuts: CutTable) -> np.ndarray:
@@ -403,22 +473,28 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
             warnings.append(f"the {name} posterior piles up at the edge of the forward model's range ({share:.0%} of "
                             "the samples): the prior may be too narrow, or the cuts contradict it; widen --prior-sd")
     acc_b, acc_a = _accuracy(p_prior, cuts), _accuracy(p_loo, cuts)
-    n_marks = int(np.sum((cuts.outcome == STABLE) | (cuts.outcome == CHATTER)))
-    # worse by more than one cut: a single cut either way is the noise of leave-one-out (measured on
-    # two-mode tools, bench_learn_modes.py: one cut worse where the held-out accuracy rose by 0.13)
-    if np.isfinite(acc_a) and np.isfinite(acc_b) and acc_a < acc_b - 1.5 / max(n_marks, 1):
+    # worse than the prior: the cross-validated log score of the marks lower than the prior's by more
+    # than twice its paired standard error (not a count of cuts that changed side: on a shop's stepped
+    # design, 4 speeds with the depth raised until chatter, leave-one-out takes away the only chatter
+    # mark at its speed, the mark then sits at the remaining cuts' boundary and two of them changed side
+    # while the posterior's probabilities scored better than the prior's; docs/learn.md, session 16)
+    score_post, score_prior, score_t = _paired_log_score(p_loo, p_prior, cuts, likelihood.mislabel)
+    if np.isfinite(score_t) and score_t < -WORSE_THAN_PRIOR_T:
         why = ("its modes are off from the prior in different directions (one factor per group moves them all), "
                if restricted else "")
         warnings.append(f"the posterior predicts the cuts worse than the prior did (cross-validated accuracy "
-                        f"{acc_a:.2f} against {acc_b:.2f}): the model may not represent this tool ({why}a mode "
-                        "missing from the prior, a worn tool) or the marks are noisier than assumed")
+                        f"{acc_a:.2f} against {acc_b:.2f}; log score per mark {score_post:.2f} against "
+                        f"{score_prior:.2f}, {-score_t:.1f} paired standard errors lower): the model may not "
+                        f"represent this tool ({why}a mode missing from the prior, a worn tool) or the marks are "
+                        "noisier than assumed")
     if np.isfinite(acc_a) and acc_a < 0.7:
         warnings.append(f"cross-validated accuracy {acc_a:.2f} is low: the model cannot explain the outcomes "
                         "(noisy marks, worn tool, a mode missing from the prior?)")
     eps_med = float(np.median(eps))
     if likelihood.learns_mislabel and eps_med > HIGH_MISLABEL:
         warnings.append(f"the marks are noisy: about {eps_med:.0%} of them look wrong under any parameters "
-                        "(operators disagreeing, a worn tool, a changed setup?); the posterior is wide for it")
+                        "(operators disagreeing, a worn tool, a changed setup, or an effect the model lacks?); the "
+                        "posterior is wide for it")
     marked = np.isfinite(p_wrong)
     if not likelihood.learns_mislabel and marked.sum() and likelihood.mislabel > 0:
         from scipy.stats import binom
@@ -433,7 +509,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     if suspects.size:
         warnings.append(f"{suspects.size} mark(s) look wrong (probability > {SUSPECT_LABEL:g}), rows "
                         + ", ".join(str(int(i)) for i in suspects[:10]) + (" ..." if suspects.size > 10 else "")
-                        + ": check them (suspect_labels)")
+                        + ": check them (suspect_labels)" + _low_speed_stable_hint(cuts, p_wrong))
     n_detected = int(np.sum(cuts.detected & labelled))
     if n_detected and likelihood.detection_lag > 0:
         warnings.append(f"{n_detected} outcome(s) detected from records are read with the detection's lag: half of "
@@ -454,4 +530,5 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                        model_error=model_error, mislabel_probability=p_wrong,
                        components=components if len(components) > 1 else (),
                        model_probability=tuple(float(w) for w in model_weight) if len(components) > 1 else (),
-                       mode_share=by_mode, mode_spread_error=spread_error, mode_correlation=float(mode_correlation))
+                       mode_share=by_mode, mode_spread_error=spread_error, mode_correlation=float(mode_correlation),
+                       log_score_before=score_prior, log_score_after=score_post)
