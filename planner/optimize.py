@@ -65,7 +65,7 @@ from stability.sdm import as_modal_model
 from .cut_model import CutModel
 from .plan_results import CONSTRAINTS, Plan, PlanBounds, PlanSettings, PocketResult, plan_bounds
 from .pockets import Pocket, build_pockets, cheb_eval, sampled_pockets, sdm_pockets, zoa_pockets
-from .wall import local_maxima, wall_error, wall_points
+from .wall import local_maxima, wall_error, wall_extremum, wall_points
 
 __all__ = ["PlanSettings", "PocketResult", "Plan", "plan", "wall_error", "CONSTRAINTS"]
 
@@ -528,7 +528,8 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
                     mrr_m3_s=None, active_constraints=(), infeasible_constraint=culprit, point=None, **common)
     x = results[best].solution
     active = _active(prob, point, x)
-    height = wall_error(point, tool, cut)[1] if "surface_error" in active else None  # where the wall binds
+    wall_m, wall_height_m = wall_extremum(point, tool, cut)  # where |SLE| on the finished wall is largest
+    height = wall_height_m if "surface_error" in active else None  # where the wall binds
     names = [f"surface_error at z = {height * 1e3:.3g} mm" if a == "surface_error" else a for a in active]
     msg = (f"{x[0]:.0f} rpm, depth {x[1] * 1e3:.3g} mm, feed {x[2] * 1e3:.3g} mm/tooth: "
            f"{_mrr(setup, x) * 1e6:.4g} cm^3/s; active: {', '.join(names) or 'none'}")
@@ -543,7 +544,8 @@ def plan(setup, structure, *, method: Method = "auto", settings: PlanSettings | 
     return Plan(converged, "optimal" if converged else "not_converged", msg, spindle_rpm=float(x[0]),
                 axial_depth_m=float(x[1]), feed_per_tooth_m=float(x[2]), mrr_m3_s=_mrr(setup, x),
                 active_constraints=active, infeasible_constraint=None, point=point,
-                surface_error_height_m=height, **common)
+                surface_error_height_m=height, surface_error_max_m=wall_m,
+                surface_error_max_height_m=wall_height_m, **common)
 
 
 def _verify(prob: _Problem, pockets, results, predict, setup, settings: PlanSettings):

@@ -225,6 +225,11 @@ class Plan:
         When ``surface_error`` is active: the height above the tool tip, m, at which ``|SLE|`` on
         the finished wall is largest (the limit binds there; :func:`planner.wall.wall_error` at
         :attr:`point`); None otherwise.
+    surface_error_max_m, surface_error_max_height_m : float or None
+        The surface location error where ``|SLE|`` on the finished wall is largest (signed,
+        m) and its height above the tip (:func:`planner.wall.wall_extremum` at :attr:`point`),
+        whether the limit binds or not; in the JSON's ``predicted`` block beside the tip's
+        ``surface_location_error_m``, as ``predict`` reports them. None without a point.
     """
 
     success: bool
@@ -243,6 +248,8 @@ class Plan:
     diagram: LobeDiagram
     elapsed_s: float = 0.0
     surface_error_height_m: float | None = None
+    surface_error_max_m: float | None = None
+    surface_error_max_height_m: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready mapping: the cli.md keys of ``plan`` and the details."""
@@ -254,7 +261,9 @@ class Plan:
             "infeasible_constraint": self.infeasible_constraint,
             "surface_error_height_m": _jf(self.surface_error_height_m),
             "stability_margin": float(self.stability_margin),
-            "predicted": None if self.point is None else self.point.to_dict(),
+            "predicted": None if self.point is None else {
+                **self.point.to_dict(), "surface_error_max_m": _jf(self.surface_error_max_m),
+                "surface_error_max_height_m": _jf(self.surface_error_max_height_m)},
             "pockets": [p.to_dict() for p in self.pockets], "elapsed_s": float(self.elapsed_s),
         }
 

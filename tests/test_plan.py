@@ -464,8 +464,13 @@ def test_the_height_where_the_wall_binds_is_reported(example_plan, example_setup
     out = capsys.readouterr().out
     assert code == 0
     assert f"surface_error (at z = {1e3 * d['surface_error_height_m']:.2f} mm on the wall)" in out
+    # the predicted block carries the wall's extremum beside the tip's value, as ``predict`` does
+    assert abs(d["predicted"]["surface_error_max_m"]) == pytest.approx(worst, rel=1e-6)
+    assert d["predicted"]["surface_error_max_height_m"] == pytest.approx(z, abs=1e-6 * example_plan.axial_depth_m)
     pr = problems.force_limited()  # no surface-error limit
-    assert plan(pr.setup, pr.structure).to_dict()["surface_error_height_m"] is None
+    free = plan(pr.setup, pr.structure).to_dict()
+    assert free["surface_error_height_m"] is None
+    assert abs(free["predicted"]["surface_error_max_m"]) >= abs(free["predicted"]["surface_location_error_m"])
 
 
 def test_every_pocket_has_a_start_and_an_answer(example_plan):
