@@ -502,17 +502,32 @@ def test_a_pole_at_the_band_edge_is_not_reported_as_a_mode():
 
 def test_a_mode_missing_from_the_record_leaves_lines_the_model_cannot_explain_and_no_trust():
     """The structure above measured as displacement (tracker rounding 15 um): in this record the
-    17 Hz Z mode is under the rounding and SSI does not find it. The two modes found scale to a
-    few per cent, but the tooth lines carry the missing mode's response (reduced chi-square 8):
-    warned and, since session 11, not trusted (before: trusted with a mode missing)."""
+    17 Hz Z mode is under the rounding and SSI does not find it. Without the seeding of residual
+    peaks (session 16) the tooth lines carry the missing mode's response (reduced chi-square 8):
+    warned and, since session 11, not trusted (before: trusted with a mode missing). With it (the
+    default) the Z channel's peak is tried as a mode and the refinement finds it: frequency,
+    damping and stiffness intervals hold the truth and the lines agree with the model again (the
+    model stays untrusted: Z is scaled by the background's level)."""
+    from oma.output_only.identify import MAX_LINE_MISFIT
+
     c, s = np.cos(np.deg2rad(30.0)), np.sin(np.deg2rad(30.0))
     truth = ModalModel(natural_frequency_hz=[12.0, 26.0, 17.0], damping_ratio=[0.04, 0.03, 0.05],
                        stiffness_N_m=[1.2e6, 2.5e6, 2.0e6], directions=[[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
     rec = synthetic_record(truth, duration_s=20.0, rng=1, spindle_rpm=2700.0, output="displacement", runout_m=None)
-    res = identify_output_only([rec])
+    res = identify_output_only([rec], seed_peaks=False)
     assert res.model.n_modes == 2 and np.all(np.abs(res.model.natural_frequency_hz - 17.0) > 2.0)
     assert any("disagree with the force model" in w for w in res.warnings)
     assert not res.trusted and res.stiffness.misfit > 4.0
+    seeded = identify_output_only([rec])
+    assert seeded.model.n_modes == 3 and any("tried as a mode" in w for w in seeded.warnings)
+    j = int(np.argmin(np.abs(seeded.model.natural_frequency_hz - 17.0)))
+    assert abs(seeded.model.natural_frequency_hz[j] / 17.0 - 1) < FREQ_TOL
+    m = seeded.modes
+    assert m.freq_interval_hz[j, 0] <= 17.0 <= m.freq_interval_hz[j, 1]
+    assert m.damping_interval[j, 0] <= 0.05 <= m.damping_interval[j, 1]
+    lo, hi = seeded.stiffness.interval_N_m[j]
+    assert lo <= 2.0e6 <= hi and seeded.scaled_by[j] == "background"
+    assert seeded.stiffness.misfit < MAX_LINE_MISFIT and not seeded.trusted
 
 
 def _scan(rng, missing: bool):

@@ -26,6 +26,7 @@ from scipy import stats
 from .._arrays import readonly as _ro
 from .._linalg import single_threaded_blas
 from ..signals import integrate_frequency_domain
+from .coverage import unexplained_peaks
 from .harmonics import (HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE, ResponseHarmonics, at_milling_line,
                         remove_response_harmonics)
 from .ml import band_groups, refine_modes_ml
@@ -36,6 +37,18 @@ __all__ = ["OutputOnlyModes", "output_only_modes", "real_direction"]
 
 #: See ``ml_refine`` in :func:`output_only_modes`.
 ML_MAX_SHIFT = 2.0
+#: Starting damping ratio of a mode seeded from a residual spectral peak (``seed_peaks``): the
+#: middle of robot modes' 2-10 % on a log scale; the refinement fits it.
+SEED_DAMPING = 0.045
+#: A residual peak is seeded when it stands this many times over its channel's median (a weaker
+#: one is only named, by ``identify``'s check at ``coverage.PEAK_RATIO``): on session 16's audit
+#: a 26-times peak under 15 um rounding (a harmonic of the rounding, no mode) was admitted by the
+#: evidence gate as a false 19.9 Hz mode; the true modes' peaks stood 56-1419 times (the paper-like
+#: cell's, any quantity) and the missed 17 Hz Z mode 4662 times. Twice the false one: a judgement
+#: from one case.
+SEED_PEAK_RATIO = 50.0
+#: A seeded mode refined to less damping than this is a tone, not a robot mode (2-10 %).
+SEED_MIN_DAMPING = 0.005
 #: Modes of different SSI views (``ssi_derivatives``) whose bands ``f (1 +- w zeta)`` overlap
 #: compete as one group (:func:`_choose_views`).
 VIEW_GROUP_WIDTH = 3.0
@@ -160,7 +173,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                        fdd_directions: bool = False, alias_up_to: float = 0.5, ml_refine: bool = True,
                        ml_directions: bool = True, derivative: int = 2,
                        ssi_derivatives: tuple | None = (2, 0), ml_options: dict | None = None,
-                       ml_evidence: bool = True, uncertainty: str = "information") -> OutputOnlyModes:
+                       ml_evidence: bool = True, uncertainty: str = "information",
+                       seed_peaks: bool = True) -> OutputOnlyModes:
     """Modes, with intervals, from one or more response records of one pose.
 
     Parameters
@@ -238,6 +252,11 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         coherent tail model), else it is dropped with a warning. The refinement also scans each
         group for a mode SSI formed no cluster for and adds it under the same gate (session 13;
         ``ml_options={'add_missing': None}`` turns the scan off).
+    seed_peaks : bool
+        With ``ml_refine``: residual spectral peaks no SSI mode explains
+        (:func:`oma.output_only.coverage.unexplained_peaks` at ``SEED_PEAK_RATIO``) are added as
+        candidates (damping ``SEED_DAMPING``, direction the spectral matrix's first singular vector
+        at the peak) for the refinement and its evidence gate (session 16).
     uncertainty : {'information', 'jackknife'}
         Standard errors of the refined modes: from the information at the optimum (default;
         the larger of the inverse Fisher information and the sandwich), or the delete-one-segment
@@ -313,6 +332,28 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     f_se, z_se, u_se = fse_all[keep], zse_all[keep], use_all[keep]
     if n_seg < 3:
         warnings.append("record too short for the segment jackknife: no intervals")
+    seeded = np.zeros(f_hat.size, dtype=bool)
+    unfitted_seed = np.zeros(f_hat.size, dtype=bool)
+    if ml_refine and seed_peaks:
+        # a residual spectral peak no SSI mode explains (on a short record a clean mode can form no
+        # SSI cluster: session 16, a 17 Hz Z mode 4662 times its channel's median in a 5 s record)
+        # is seeded for the refinement, whose evidence gate keeps it only if the spectrum supports it
+        wander = max((h.speed_variation for h in harmonics), default=0.0)
+        peaks = unexplained_peaks(raw, fs, (lo, hi), f_hat, z_hat, lines, line_halfwidth_hz=wander,
+                                  ratio=SEED_PEAK_RATIO)
+        seeds = sorted({round(p.freq_hz, 6) for p in peaks})
+        if seeds:
+            n_seeded = len(seeds)
+            seed_shapes = _peak_shapes(raw, fs, seeds)
+            order_new = np.argsort(np.r_[f_hat, seeds], kind="stable")
+            f_hat = np.r_[f_hat, seeds][order_new]
+            z_hat = np.r_[z_hat, np.full(n_seeded, SEED_DAMPING)][order_new]
+            shapes = np.column_stack([shapes, seed_shapes])[:, order_new]
+            support = np.r_[support, np.zeros(n_seeded)][order_new]
+            seeded = np.r_[seeded, np.ones(n_seeded, dtype=bool)][order_new]
+            f_se, z_se, u_se = (np.r_[a, np.full(n_seeded, np.nan)][order_new] for a in (f_se, z_se, u_se))
+            warnings.extend(f"a residual spectral peak at {f:.2f} Hz that no SSI mode explains was tried as a mode"
+                            for f in seeds)
     if fdd_directions and f_hat.size:
         shapes = _fdd_shapes(raw, fs, f_hat, z_hat, shapes)
     from_information = np.zeros(f_hat.size, dtype=bool)
@@ -343,6 +384,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
             shapes, support = np.column_stack([shapes, out[2][:, new]]), np.append(support, np.zeros(n_new))
             f_se, z_se = np.append(f_se, np.full(n_new, np.nan)), np.append(z_se, np.full(n_new, np.nan))
             u_se = np.append(u_se, np.full(n_new, np.nan))
+            seeded = np.append(seeded, np.zeros(n_new, dtype=bool))
             for k in range(f_hat.size - n_new, f_hat.size):
                 gain = f" (likelihood gain {ev[k][0]:.1f} against penalty {ev[k][1]:.1f})" if ev else ""
                 warnings.append(f"mode at {f_hat[k]:.2f} Hz found by the refinement's scan of what its group's "
@@ -351,19 +393,21 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         # refinement dropped it and refitted its group without it
         weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
         for k in np.flatnonzero(weak):
-            warnings.append(f"stable SSI cluster at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
+            what = "stable SSI cluster" if support[k] > 0 else "seeded peak"
+            warnings.append(f"{what} at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
                             f"{ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
         keep_ = ~weak
         out = (out[0][keep_], out[1][keep_], out[2][:, keep_], out[3][keep_],
                None if out[4] is None else tuple(a[keep_] for a in out[4]), tuple(a[keep_] for a in out[5]))
         f_hat, z_hat, shapes, support = f_hat[keep_], z_hat[keep_], shapes[:, keep_], support[keep_]
-        f_se, z_se, u_se = f_se[keep_], z_se[keep_], u_se[keep_]
+        f_se, z_se, u_se, seeded = f_se[keep_], z_se[keep_], u_se[keep_], seeded[keep_]
         f_ssi, z_ssi = f_hat, z_hat
         f_hat, z_hat, ml_shapes, fitted, ses, (in_level, in_level_se) = out
         # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is
         # taken for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept
         moved = np.abs(f_hat - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
         fitted = fitted & ~moved    # a group whose fit failed keeps SSI's values and errors
+        unfitted_seed = seeded & ~fitted
         in_level, in_level_se = np.where(fitted, in_level, np.nan), np.where(fitted, in_level_se, np.nan)
         f_hat, z_hat = np.where(fitted, f_hat, f_ssi), np.where(fitted, z_hat, z_ssi)
         if ses is not None:
@@ -387,6 +431,16 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     # only: the background's slope at the edge reads as a heavily damped mode (session 12: 4.1-4.3 Hz
     # at 13-22 % damping, 2 of 40 records of structures unlike the paper's). Not a mode; said so.
     inside = (f_hat * (1.0 - z_hat) >= lo) & (f_hat * (1.0 + z_hat) <= hi)
+    # a seeded peak the refinement turned into a tone on a milling line (a real Hurco file: a peak
+    # 3 Hz off a 266.5 Hz tooth line went onto it at 0 % damping) is the line's, not a mode
+    tone = seeded & ~unfitted_seed & (at_milling_line(f_hat, z_hat, lines) | (z_hat < SEED_MIN_DAMPING))
+    for k in np.flatnonzero(tone):
+        warnings.append(f"seeded peak refined to {f_hat[k]:.2f} Hz at {100 * z_hat[k]:.2f} % damping: a tone or a "
+                        "milling line's remainder, not kept as a mode")
+    # a seed the refinement could not fit has only its starting values (4.5 %, no error): no mode
+    for k in np.flatnonzero(unfitted_seed):
+        warnings.append(f"seeded peak at {f_hat[k]:.2f} Hz not kept: the refinement could not fit it")
+    inside &= ~(tone | unfitted_seed)
     for k in np.flatnonzero(~inside):
         warnings.append(f"pole at {f_hat[k]:.2f} Hz ({100 * z_hat[k]:.0f} % damping) not reported as a mode: its "
                         f"half-power band crosses the edge of the analysed band {lo:g}-{hi:g} Hz (widen the band "
@@ -522,6 +576,21 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
     cnt = np.isfinite(a).sum(axis=0)
     u_se = np.where(cnt >= 3, np.sqrt((cnt - 1) / np.maximum(cnt, 1) * np.nansum(a ** 2, axis=0)), np.nan)
     return f, z, out, fitted, (f_se, z_se, u_se), levels
+
+
+def _peak_shapes(residuals, fs, freq_hz, *, segment_s: float = 1.0) -> np.ndarray:
+    """First singular vector of the averaged spectral matrix at each frequency (the bin nearest
+    it, 1 s segments as :mod:`oma.output_only.coverage` finds the peaks), (n_channels, n)."""
+    nper = int(min(min(r.shape[1] for r in residuals), round(segment_s * fs)))
+    g = 0.0
+    for r in residuals:
+        f, p = sps.csd(r[:, None, :], r[None, :, :], fs=fs, nperseg=nper, axis=-1)
+        g = g + p
+    out = np.empty((residuals[0].shape[0], len(freq_hz)), dtype=complex)
+    for k, fr in enumerate(freq_hz):
+        u, _, _ = np.linalg.svd(g[:, :, int(np.argmin(np.abs(f - fr)))])
+        out[:, k] = u[:, 0]
+    return out
 
 
 def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float = 2.0):
