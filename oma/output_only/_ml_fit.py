@@ -242,6 +242,20 @@ def _without_mode(p, mod: _Model, j: int):
     return new, np.concatenate(parts)
 
 
+def _signed(p, mod: _Model):
+    """The model with the constant background's sign free (``_Model.signed_background``) and the
+    parameters that give it the spectrum of ``p``: ``N``'s Cholesky entries replaced by ``N``'s own
+    lower triangle (unchanged without a background)."""
+    new = mod._replace(signed_background=True)
+    if mod.signed_background or not mod.noise:
+        return new, np.array(p, dtype=float)
+    pp = _unpack(p, mod)
+    i = 2 * mod.m + mod.m * mod.l + pp.tm[0].size
+    out = np.array(p, dtype=float)
+    out[i:i + pp.tl[0].size] = pp.n[pp.tl]
+    return new, out
+
+
 def _orthogonalised(u):
     """Symmetric (Loewdin) orthonormalisation of the columns of ``u``: ``u (u^T u)^(-1/2)``, the
     orthonormal set nearest to ``u`` that favours no column."""

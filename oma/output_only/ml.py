@@ -14,8 +14,10 @@ with the parametric output spectrum of real modes under a white input of unknown
 constant positive-definite background and ``d`` the derivative order of the measured quantity
 (0 displacement, 1 velocity, 2 acceleration). Whittle (1953); for OMA: Pintelon, Guillaume &
 Schoukens, MSSP 21 (2007). The input need not be white across a group's band: by default
-(``input_slope``) ``C`` is ``C (w / w_c)^beta`` there, one slope ``beta`` per group (session 15). The bins within 0.1 Hz of a regressed milling line are left out (the
-regression notches them).
+(``input_slope``) ``C`` is ``C (w / w_c)^beta`` there, one slope ``beta`` per group (session 15);
+the slope reported (``slopes``) is that of the fit with the constant background's sign free,
+unbiased where the fit's own is not (session 16). The bins within 0.1 Hz of a regressed milling
+line are left out (the regression notches them).
 
 The tails of the modes outside the band are modelled, per group, by a constant ``N`` or (chosen
 by BIC) by the responses of the other modes found, ``u_j / D_j(w)`` at their estimated frequency,
@@ -47,7 +49,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._ml_fit import _TAIL_PARENT, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
-from ._ml_inference import _information_se, _missing_mode, _mode_gain, _new_mode_apart
+from ._ml_inference import _information_se, _input_slope, _missing_mode, _mode_gain, _new_mode_apart
 from .whittle import _fisher, _input_level, _unpack
 
 __all__ = ["refine_modes_ml", "RefinedModes"]
@@ -111,7 +113,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     lines_hz=(), half_width: float = 6.0, min_half_width_hz: float = 1.0,
                     line_guard_hz: float = 0.1, max_iter: int = 40, evidence: dict | None = None,
                     segments=None, residual_terms="auto", direction_scale=None,
-                    add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf), input_slope: bool = True):
+                    add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf), input_slope: bool = True,
+                    slopes: dict | None = None):
     """Whittle-ML frequency, damping and direction of output-only modes (see the module docstring).
 
     Parameters
@@ -167,6 +170,15 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         structure's damping by up to +56 % and frequencies by up to -2.9 %, outside their
         intervals (docs/output_only.md, session 15). The slope has a Gaussian prior
         (:data:`oma.output_only.whittle.SLOPE_PRIOR_SD`).
+    slopes : dict, optional
+        Filled with ``'beta'`` and ``'beta_se'``, arrays shaped as ``freq_hz`` below (NaN where
+        not fitted, and without ``input_slope``): each mode's group's input slope and its standard
+        error (posterior, under the prior :data:`oma.output_only.whittle.SLOPE_PRIOR_SD`), from the
+        group's fit redone with the constant background's sign free
+        (:func:`oma.output_only._ml_inference._input_slope`: the fit's own slope is biased where
+        the record has no noise floor, e.g. +0.26 on the close pair of noise-free accelerations).
+        The evidence of the background force's colour; the refined values do not depend on it.
+        Costs one short refit per group (2-7 % of ``identify``'s CPU). None: not computed.
     residual_terms : {'auto', False, 'known', 'background', True} or a sequence of them
         The tails of the modes outside a group's band: a constant background (False); the
         responses of the other modes found (``'known'``: each ``u_j / D_j(w)`` at its estimated
@@ -212,8 +224,11 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     reps = None if segments is None else np.full((3, len(segments), f0.size), np.nan)
     se = np.full((4, f0.size), np.nan)
     level = np.full(f0.size, np.nan)
+    beta, beta_se = np.full(f0.size, np.nan), np.full(f0.size, np.nan)
     dscale = np.ones(l) if direction_scale is None else np.asarray(direction_scale, dtype=float)
     if f0.size == 0:
+        if slopes is not None:
+            slopes.update(beta=beta, beta_se=beta_se)
         return RefinedModes(f_out, z_out, u_out, ok, reps, se, level)
 
     def spectra(rs):
@@ -352,6 +367,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     ok, dropped, added = np.append(ok, False), np.append(dropped, False), np.append(added, True)
                     se = np.column_stack([se, np.full(4, np.nan)])
                     level = np.append(level, np.nan)
+                    beta, beta_se = np.append(beta, np.nan), np.append(beta_se, np.nan)
                     if reps is not None:
                         reps = np.concatenate([reps, np.full((3, reps.shape[1], 1), np.nan)], axis=2)
                     if evidence is not None:
@@ -370,6 +386,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             u_out[:, k] = uk if uk @ u0[:, k] >= 0 else -uk
         se[:, g] = _information_se(px, mod, x, u, dscale * scale, derivative)
         level[g] = _input_level(px, mod, derivative, dscale * scale)[0]
+        if slopes is not None and mod.slope:
+            beta[g], beta_se[g] = _input_slope(px, mod, x)
         if gapped:
             # the information is the expected one (it depends on the parameters, not the data):
             # every replicate starts from the full-record optimum, so from the same matrix
@@ -388,4 +406,6 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     if evidence is not None:
         evidence["dropped"] = dropped
         evidence["added"] = added
+    if slopes is not None:
+        slopes.update(beta=beta, beta_se=beta_se)
     return RefinedModes(f_out, z_out, u_out, ok, reps, se, level)

@@ -2,10 +2,10 @@
 Fisher information (:mod:`oma.output_only.ml` fits it; see there for the model and its
 references). Parameters: frequencies ``f0 (1 + zeta0 p_f)``, damping ``exp(p_z)``, raw direction
 vectors (normalised), the free entries of the Cholesky factors of the input covariance
-``C`` (modes, then residual terms) and of the constant background ``N``, and (``_Model.slope``)
-the input's spectral slope ``beta`` across the group's band: the input covariance at ``w`` is
-``C (w / w_c)^beta``, ``w_c`` the band's geometric centre (a coloured background force: session
-15).
+``C`` (modes, then residual terms) and of the constant background ``N`` (or, with
+``_Model.signed_background``, ``N``'s own entries), and (``_Model.slope``) the input's spectral
+slope ``beta`` across the group's band: the input covariance at ``w`` is ``C (w / w_c)^beta``,
+``w_c`` the band's geometric centre (a coloured background force: session 15).
 """
 
 from __future__ import annotations
@@ -29,7 +29,11 @@ class _Model(NamedTuple):
     whether the residual terms' input may correlate with the modes' (``coherent``; else ``C`` is
     block diagonal and the residual terms are a frequency-dependent background), and whether the
     input's level has a fitted slope in log frequency (``slope``; the last parameter, ``beta``:
-    the input covariance is ``C (w / w_c)^beta``)."""
+    the input covariance is ``C (w / w_c)^beta``), and whether ``N``'s parameters are its own
+    lower triangle (``signed_background``: ``N`` symmetric, of either sign where the model spectrum
+    stays positive definite; such a model is made from a fit's optimum by
+    :func:`oma.output_only._ml_fit._signed` only) instead of its Cholesky factor's (``N`` positive
+    semi-definite)."""
 
     m: int
     l: int
@@ -40,6 +44,7 @@ class _Model(NamedTuple):
     ref: tuple
     coherent: bool = True
     slope: bool = False
+    signed_background: bool = False
 
     @property
     def w_c(self) -> float:
@@ -62,8 +67,9 @@ class _Params(NamedTuple):
     """The decoded parameter vector: frequencies ``f`` (m,), damping ``z`` (m,), unit directions
     ``u`` (m, l) and the norms ``norm`` (m,) of their raw vectors, the Cholesky factors ``lc``
     (m + q, m + q) and ``ln`` (l, l) of the input covariance ``c`` (modes and residual terms) and
-    the background ``n``, the index sets ``tm``, ``tl`` of those factors' free entries and the
-    input's slope ``beta`` (0 without ``_Model.slope``)."""
+    the background ``n`` (with ``_Model.signed_background``, ``ln`` is ``n``'s lower triangle),
+    the index sets ``tm``, ``tl`` of those factors' free entries and the input's slope ``beta``
+    (0 without ``_Model.slope``)."""
 
     f: np.ndarray
     z: np.ndarray
@@ -116,8 +122,9 @@ def _unpack(p, mod: _Model) -> _Params:
     tl = _tril(l) if mod.noise else (np.zeros(0, dtype=int), np.zeros(0, dtype=int))
     lc = np.zeros((mq, mq)); lc[tm] = p[i:i + tm[0].size]; i += tm[0].size
     ln = np.zeros((l, l)); ln[tl] = p[i:i + tl[0].size]; i += tl[0].size
+    n = ln + np.tril(ln, -1).T if mod.signed_background else ln @ ln.T
     beta = float(np.clip(p[i], -MAX_SLOPE, MAX_SLOPE)) if mod.slope else 0.0
-    return _Params(f, z, vraw / norm[:, None], norm, lc, ln, lc @ lc.T, ln @ ln.T, tm, tl, beta)
+    return _Params(f, z, vraw / norm[:, None], norm, lc, ln, lc @ lc.T, n, tm, tl, beta)
 
 
 def _gain(pp: _Params, mod: _Model) -> np.ndarray:
@@ -227,7 +234,10 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     if mod.noise:
         gr = np.real(total(gmat))
         gr = 0.5 * (gr + np.swapaxes(gr, -1, -2))
-        grad[..., i + tm[0].size:i + tm[0].size + tl[0].size] = (2 * gr @ ln)[..., tl[0], tl[1]]
+        # through N = L L^T, or N's own entries (dN / dN_ab = E_ab + E_ba off the diagonal)
+        gn = np.where(tl[0] == tl[1], 1.0, 2.0) * gr[..., tl[0], tl[1]] if mod.signed_background \
+            else (2 * gr @ ln)[..., tl[0], tl[1]]
+        grad[..., i + tm[0].size:i + tm[0].size + tl[0].size] = gn
     if mod.slope:   # dS/dbeta = log(w / w_c) gain V C V^H; the prior 0.5 (beta / sd)^2
         grad[..., -1] = total(mod.log_w * np.einsum("kij,ji->k", np.real(a), c)) \
             if abs(pp.beta) < MAX_SLOPE else 0.0
@@ -271,7 +281,10 @@ def _fisher(p, mod: _Model):
     if tl[0].size:
         k = mod.w.size
         xs.append(np.broadcast_to(np.eye(l)[tl[0]][:, None, :], (tl[0].size, k, l)).astype(complex))
-        ys.append(np.broadcast_to(ln[:, tl[1]].T[:, None, :], (tl[0].size, k, l)).astype(complex))
+        # dS = e_a (L e_b)^T + ...; signed: dS = e_a e_b^T + e_b e_a^T, e_a e_a^T on the diagonal
+        yn = np.eye(l)[tl[1]] * np.where(tl[0] == tl[1], 0.5, 1.0)[:, None] if mod.signed_background \
+            else ln[:, tl[1]].T
+        ys.append(np.broadcast_to(yn[:, None, :], (tl[0].size, k, l)).astype(complex))
     n_slope = vl.shape[2] if mod.slope else 0
     if n_slope:   # one pair per column j of V L_C: X = log(w/w_c) / 2 (V L_C)_j, Y = (V L_C)_j
         xs.append(np.moveaxis(vl, 2, 0) * (0.5 * mod.log_w)[None, :, None] * g)
