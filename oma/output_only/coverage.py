@@ -28,12 +28,15 @@ __all__ = ["UnexplainedPeak", "unexplained_peaks", "PEAK_RATIO"]
 
 #: A peak counts when its Welch PSD is this many times the channel's median over the band. A
 #: Welch estimate of a flat spectrum from ``n`` averages exceeds ``c`` times its mean with
-#: probability about ``exp(-n c)`` per bin (chi-square, 2n degrees of freedom): at 20 and two
-#: averages (a 5 s record, 4 s segments), 4e-18; robot modes in the records seen stand 10^3-10^4.
+#: probability about ``exp(-n c)`` per bin (chi-square, 2n degrees of freedom): at 20 and the
+#: nine averages of a 5 s record (1 s segments, half overlapped), about 1e-78; robot modes in the
+#: records seen stand 10^2-10^4 (the missed 17 Hz Z mode: 4662).
 PEAK_RATIO = 20.0
 #: ... and this many times the lowest value within a tenth of its frequency on either side.
 PROMINENCE = 4.0
-#: Welch segment length, s: 0.25 Hz bins, fine enough for a 10 Hz mode at 2 % damping (0.4 Hz wide).
+#: Welch segment length, s: 1 Hz bins. 4 s segments (0.25 Hz, two averages in a 5 s record) let a
+#: strong mode's noisy skirt pass the prominence test in 12 of 12 records (docs/output_only.md);
+#: a mode narrower than a bin (10 Hz at 2 %: 0.4 Hz) still puts its power in one.
 SEGMENT_S = 1.0
 
 

@@ -26,7 +26,7 @@ from scipy import stats
 from .._arrays import readonly as _ro
 from .._linalg import single_threaded_blas
 from ..signals import integrate_frequency_domain
-from .coverage import unexplained_peaks
+from .coverage import SEGMENT_S, unexplained_peaks
 from .harmonics import (HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE, ResponseHarmonics, at_milling_line,
                         remove_response_harmonics)
 from .ml import band_groups, refine_modes_ml
@@ -578,14 +578,20 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
     return f, z, out, fitted, (f_se, z_se, u_se), levels
 
 
-def _peak_shapes(residuals, fs, freq_hz, *, segment_s: float = 1.0) -> np.ndarray:
-    """First singular vector of the averaged spectral matrix at each frequency (the bin nearest
-    it, 1 s segments as :mod:`oma.output_only.coverage` finds the peaks), (n_channels, n)."""
-    nper = int(min(min(r.shape[1] for r in residuals), round(segment_s * fs)))
+def _spectral_matrix(residuals, fs, nperseg: int):
+    """Frequencies and the spectral matrix ``G[i, j, f]`` of the residual channels, summed over
+    the records (Welch cross spectra, ``nperseg`` samples a segment)."""
     g = 0.0
     for r in residuals:
-        f, p = sps.csd(r[:, None, :], r[None, :, :], fs=fs, nperseg=nper, axis=-1)
+        f, p = sps.csd(r[:, None, :], r[None, :, :], fs=fs, nperseg=nperseg, axis=-1)
         g = g + p
+    return f, g
+
+
+def _peak_shapes(residuals, fs, freq_hz) -> np.ndarray:
+    """First singular vector of the spectral matrix at each frequency (the bin nearest it, the
+    segments :mod:`oma.output_only.coverage` finds the peaks with), (n_channels, n)."""
+    f, g = _spectral_matrix(residuals, fs, int(min(min(r.shape[1] for r in residuals), round(SEGMENT_S * fs))))
     out = np.empty((residuals[0].shape[0], len(freq_hz)), dtype=complex)
     for k, fr in enumerate(freq_hz):
         u, _, _ = np.linalg.svd(g[:, :, int(np.argmin(np.abs(f - fr)))])
@@ -597,10 +603,7 @@ def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float
     """Singular vectors of the averaged spectral matrix over each mode's half-power band."""
     nper = int(min(min(r.shape[1] for r in residuals), 2 ** np.round(np.log2(segment_s * fs))))
     l = residuals[0].shape[0]
-    g = 0.0
-    for r in residuals:
-        f, p = sps.csd(r[:, None, :], r[None, :, :], fs=fs, nperseg=nper, axis=-1)
-        g = g + p
+    f, g = _spectral_matrix(residuals, fs, nper)
     out = np.array(ssi_shapes, dtype=complex)
     for k, (fr, zr) in enumerate(zip(freq_hz, damping)):
         sel = np.abs(f - fr) <= max(zr * fr, f[1] - f[0])

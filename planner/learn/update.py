@@ -97,12 +97,12 @@ class LearnResult:
                                 "max": float(np.max(self.model_error, initial=0.0))}}
 
 
-def _low_speed_stable_hint(cuts: CutTable, p_wrong: np.ndarray) -> str:
-    """A clause for the suspect-marks warning when the marks that look wrong are mostly cuts marked
-    stable where the posterior predicts chatter, at the low end of the cuts' speeds (at least 2,
-    and 3 in 4 of those read-stable suspects in the lowest third of the log-speed span): the
-    signature of process damping, which raises the limit at low speed and is not in the model.
-    Else ''.
+def _low_speed_stable_hint(cuts: CutTable, suspects: np.ndarray) -> str:
+    """A clause for the suspect-marks warning when the marks that look wrong (``suspects``: their
+    rows) are mostly cuts marked stable where the posterior predicts chatter, at the low end of the
+    cuts' speeds (at least 2, and 3 in 4 of those read-stable suspects in the lowest third of the
+    log-speed span): the signature of process damping, which raises the limit at low speed and is
+    not in the model. Else ''.
 
     A hint, not a test. Session 16 audit (30 random cuts, CLI likelihood): it names the process-
     damping seed whose misfit was blamed on noisy marks (C = 2e5 N/m; 3 of its 4 read-stable
@@ -110,8 +110,7 @@ def _low_speed_stable_hint(cuts: CutTable, p_wrong: np.ndarray) -> str:
     missing from the prior, 3 stepped designs or a drifting Kt (none has two read-stable suspects
     at low speed). With random flips the suspects spread over the speeds (a third of them low).
     """
-    suspect = np.nan_to_num(p_wrong) > SUSPECT_LABEL
-    stable = suspect & (cuts.outcome == STABLE)
+    stable = np.isin(np.arange(cuts.n_cuts), suspects) & (cuts.outcome == STABLE)
     if stable.sum() < 2:
         return ""
     log_s = np.log(cuts.spindle_rpm)
@@ -509,7 +508,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     if suspects.size:
         warnings.append(f"{suspects.size} mark(s) look wrong (probability > {SUSPECT_LABEL:g}), rows "
                         + ", ".join(str(int(i)) for i in suspects[:10]) + (" ..." if suspects.size > 10 else "")
-                        + ": check them (suspect_labels)" + _low_speed_stable_hint(cuts, p_wrong))
+                        + ": check them (suspect_labels)" + _low_speed_stable_hint(cuts, suspects))
     n_detected = int(np.sum(cuts.detected & labelled))
     if n_detected and likelihood.detection_lag > 0:
         warnings.append(f"{n_detected} outcome(s) detected from records are read with the detection's lag: half of "
