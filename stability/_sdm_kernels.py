@@ -104,6 +104,11 @@ def _assemble_loop(phi, gd, lam, cutting, col_of, row_of, s_mat, size):
 _KERNELS: dict = {}
 
 
+#: The plain functions the loops call: compiled first and bound in their names' place, so that
+#: numba, compiling a loop, finds compiled functions there.
+_CALLEES = ("_gram_schmidt", "_apply_monodromy")
+
+
 def _compiled(loop):
     """``loop`` compiled by numba on first use (cached on disk), so that importing this module
     does not import numba. :func:`_assemble_loop`, measured at 224 steps (1-DOF): 0.5 ms compiled
@@ -111,6 +116,9 @@ def _compiled(loop):
     if loop.__name__ not in _KERNELS:
         import numba
 
+        for name in _CALLEES:
+            if name not in _KERNELS:
+                _KERNELS[name] = globals()[name] = numba.njit(cache=True)(globals()[name])
         _KERNELS[loop.__name__] = numba.njit(cache=True)(loop)
     return _KERNELS[loop.__name__]
 
@@ -120,6 +128,39 @@ def _compiled(loop):
 # ||M x - mu x|| / |mu| below which it is accepted (otherwise twice the dimension, then LAPACK).
 _KRYLOV = 20
 _RESIDUAL_RTOL = 1e-9
+
+
+def _gram_schmidt(basis, hess, w, h, bi, j):
+    """One Arnoldi step's orthogonalisation (plain loops, compiled by numba): ``w = M v_j`` made
+    orthogonal to ``basis[bi, :j + 1]`` by two passes of classical Gram-Schmidt, the coefficients
+    into column ``j`` of ``hess[bi]``, the normalised rest into ``basis[bi, j + 1]``. Returns
+    whether the basis broke down (``w`` in the span: an invariant subspace); ``h`` is scratch."""
+    n = w.shape[0]
+    for l in range(j + 1):
+        hess[bi, l, j] = 0.0
+    for _ in range(2):
+        for l in range(j + 1):
+            acc = 0.0
+            for i in range(n):
+                acc += basis[bi, l, i] * w[i]
+            h[l] = acc
+        for l in range(j + 1):
+            hess[bi, l, j] += h[l]
+            for i in range(n):
+                w[i] -= h[l] * basis[bi, l, i]
+    beta = 0.0
+    for i in range(n):
+        beta += w[i] * w[i]
+    beta = np.sqrt(beta)
+    hn = 0.0
+    for l in range(j + 1):
+        hn += hess[bi, l, j] * hess[bi, l, j]
+    if beta <= 1e-13 * max(np.sqrt(hn), 1e-300):
+        return True
+    hess[bi, j + 1, j] = beta
+    for i in range(n):
+        basis[bi, j + 1, i] = w[i] / beta
+    return False
 
 
 def _arnoldi_loop(mono, k, v0, basis, hess):
@@ -140,31 +181,9 @@ def _arnoldi_loop(mono, k, v0, basis, hess):
                 for c in range(n):
                     acc += mono[bi, r, c] * basis[bi, j, c]
                 w[r] = acc
-            for l in range(j + 1):
-                hess[bi, l, j] = 0.0
-            for _ in range(2):
-                for l in range(j + 1):
-                    acc = 0.0
-                    for i in range(n):
-                        acc += basis[bi, l, i] * w[i]
-                    h[l] = acc
-                for l in range(j + 1):
-                    hess[bi, l, j] += h[l]
-                    for i in range(n):
-                        w[i] -= h[l] * basis[bi, l, i]
-            beta = 0.0
-            for i in range(n):
-                beta += w[i] * w[i]
-            beta = np.sqrt(beta)
-            hn = 0.0
-            for l in range(j + 1):
-                hn += hess[bi, l, j] * hess[bi, l, j]
-            if beta <= 1e-13 * max(np.sqrt(hn), 1e-300):
+            if _gram_schmidt(basis, hess, w, h, bi, j):
                 broke[bi] = True
                 break
-            hess[bi, j + 1, j] = beta
-            for i in range(n):
-                basis[bi, j + 1, i] = w[i] / beta
     return broke
 
 
@@ -270,3 +289,119 @@ def _dominant(mono: np.ndarray, *, vectors: bool = False):
             vals = np.linalg.eigvals(mono[todo])
             mu[todo] = vals[np.arange(todo.size), np.argmax(np.abs(vals), axis=1)]
     return mu, vec
+
+
+# ------------------------------------------------------------------- the multiplier matrix-free
+# Krylov dimensions tried in turn matrix-free: a product costs O(m n^2), not O(N^2), so the
+# factorization is continued past the dense path's two before LAPACK (at lobe cusps and at high
+# damping two multipliers of nearly equal modulus need more vectors).
+_KRYLOV_FREE = (_KRYLOV, 2 * _KRYLOV, 4 * _KRYLOV, 8 * _KRYLOV)
+
+
+def _apply_monodromy(phi, gd, lam, cutting, col_of, row_of, s_mat, bi, v, w, y, tmp):
+    """``w = M v`` for batch member ``bi``, step by step (plain loops, compiled by numba): the
+    state ``y_0 = v[:2n]`` propagated through the ``m`` step maps, ``y <- Phi_i y + Gd_i xi_i +
+    Lam_i xi_{i+1}`` with the history read from ``v`` at the slots ``col_of`` (slot ``m`` is
+    ``xi_0 = S eta_0``), the rows ``S eta_i`` recorded at ``row_of`` before step ``i``, and
+    ``w[:2n] = y_m``: the map :func:`_assemble_loop` builds column by column, in ``O(m n^2)``."""
+    m, n2, d, nn = phi.shape[1], phi.shape[2], gd.shape[3], s_mat.shape[1]
+    for r in range(n2):
+        y[r] = v[r]
+    for i in range(m):
+        r0 = row_of[i]
+        if r0 >= 0:
+            for a in range(d):
+                acc = 0.0
+                for q in range(nn):
+                    acc += s_mat[a, q] * y[q]
+                w[n2 + r0 + a] = acc
+        for r in range(n2):
+            acc = 0.0
+            for q in range(n2):
+                acc += phi[bi, i, r, q] * y[q]
+            tmp[r] = acc
+        if cutting[i]:
+            c0 = col_of[i]
+            for r in range(n2):
+                acc = 0.0
+                for a in range(d):
+                    acc += gd[bi, i, r, a] * v[c0 + a]
+                tmp[r] += acc
+            if i + 1 < m:
+                c1 = col_of[i + 1]
+                for r in range(n2):
+                    acc = 0.0
+                    for a in range(d):
+                        acc += lam[bi, i, r, a] * v[c1 + a]
+                    tmp[r] += acc
+            else:  # slot m: xi_0 = S eta_0, from the state's part of v
+                for r in range(n2):
+                    acc = 0.0
+                    for a in range(d):
+                        xi = 0.0
+                        for q in range(nn):
+                            xi += s_mat[a, q] * v[q]
+                        acc += lam[bi, i, r, a] * xi
+                    tmp[r] += acc
+        for r in range(n2):
+            y[r] = tmp[r]
+    for r in range(n2):
+        w[r] = y[r]
+
+
+def _arnoldi_free_loop(phi, gd, lam, cutting, col_of, row_of, s_mat, first, k, basis, hess, skip):
+    """Arnoldi steps ``first .. k - 1`` for each batch member not ``skip``-ped (plain loops,
+    compiled by numba), continuing ``basis`` (B, >= k + 1, N) and ``hess`` (B, >= k + 1, >= k):
+    :func:`_arnoldi_loop` with ``M v`` from :func:`_apply_monodromy`. A member whose basis breaks
+    down is marked in ``skip``."""
+    n, n2 = basis.shape[2], phi.shape[2]
+    w = np.zeros(n)
+    h = np.empty(k + 1)
+    y = np.empty(n2)
+    tmp = np.empty(n2)
+    for bi in range(basis.shape[0]):
+        if skip[bi]:
+            continue
+        for j in range(first, k):
+            _apply_monodromy(phi, gd, lam, cutting, col_of, row_of, s_mat, bi, basis[bi, j], w, y, tmp)
+            if _gram_schmidt(basis, hess, w, h, bi, j):
+                skip[bi] = True
+                break
+
+
+def _dominant_matrix_free(phi, gd, lam, cutting, col_of, row_of, s_mat, size: int) -> np.ndarray:
+    """Dominant multiplier of each reduced monodromy of a batch (``size`` rows), never formed.
+
+    The Arnoldi iteration of :func:`_dominant` (the same seeded start vector, Gram-Schmidt and
+    residual test) on ``M v`` applied step by step, so the multiplier equals the dense path's to
+    rounding where 20 vectors converge; otherwise continued to the larger :data:`_KRYLOV_FREE`
+    dimensions (there it equals LAPACK's to the residual test). NaN for a member still not
+    converged or whose basis broke down (the caller forms those)."""
+    bsz = phi.shape[0]
+    mu = np.full(bsz, np.nan, dtype=complex)
+    dims = [k for k in _KRYLOV_FREE if k + 4 < size]
+    if not dims:  # too small for the Krylov steps
+        return mu
+    basis = np.zeros((bsz, dims[-1] + 1, size))
+    hess = np.zeros((bsz, dims[-1] + 1, dims[-1]))
+    basis[:, 0] = _start_vector(size)
+    args = (np.ascontiguousarray(phi), np.ascontiguousarray(gd), np.ascontiguousarray(lam),
+            np.asarray(cutting, dtype=np.bool_), col_of, row_of, np.ascontiguousarray(s_mat, dtype=float))
+    broke = np.zeros(bsz, dtype=np.bool_)
+    todo, first = np.arange(bsz), 0
+    for k in dims:
+        skip = np.ones(bsz, dtype=np.bool_)
+        skip[todo] = False
+        _compiled(_arnoldi_free_loop)(*args, first, k, basis, hess, skip)
+        broke[todo] = skip[todo]
+        live = todo[~broke[todo]]
+        if live.size:
+            m_, _, r_ = _ritz(basis[live, : k + 1], hess[live, : k + 1, :k], k, False)
+            ok = r_ <= _RESIDUAL_RTOL * np.maximum(np.abs(m_), 1e-12)
+            mu[live[ok]] = m_[ok]
+            todo = np.setdiff1d(todo, live[ok])
+        todo = todo[~broke[todo]]
+        first = k
+        if todo.size == 0:
+            break
+    return mu

@@ -97,7 +97,12 @@ def _newton_intersection(prob, b1, k1, f1, b2, k2, f2, *, iters=30):
 
 
 def _lobe_speed(freq_hz, phase_rad, teeth, k):
-    return 60.0 * freq_hz / (teeth * (phase_rad / TWO_PI + k))
+    """Spindle speed (rpm) at which lobe ``k`` of a branch has this chatter frequency and phase;
+    ``inf`` where the lobe's number of waves per tooth period is zero (lobe 0 at zero phase: no
+    finite speed, and no lobe there), without NumPy's divide warning (which ``robomill``'s CLI
+    would print to the user)."""
+    with np.errstate(divide="ignore"):
+        return 60.0 * freq_hz / (teeth * (phase_rad / TWO_PI + k))
 
 
 # Illinois steps (at most) for a lobe's onset ``Re lambda = 0`` inside a grid interval.

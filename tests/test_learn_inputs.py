@@ -15,6 +15,7 @@ import csv
 import io
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -53,21 +54,9 @@ modes:
 - {natural_frequency_hz: 735.0, damping_ratio: 0.02, stiffness_N_m: 4.4e6, direction: [0.0, 1.0, 0.0]}
 """
 HEADER = "spindle_rpm,axial_depth_m,radial_depth_m,milling,outcome"
-# 12 cuts at 0.4-2x the SDM limit of the modes above (the audit's table)
-CUTS = HEADER + """
-6000,0.00223,0.006,down,stable
-7000,0.029,0.006,down,chatter
-8000,0.00296,0.006,down,stable
-9000,0.01035,0.006,down,chatter
-10000,0.00867,0.006,down,stable
-12000,0.00995,0.006,down,chatter
-13000,0.00234,0.006,down,stable
-14000,0.00918,0.006,down,chatter
-15000,0.00383,0.006,down,stable
-16000,0.01137,0.006,down,chatter
-17000,0.00618,0.006,down,stable
-18000,0.029,0.006,down,chatter
-"""
+# 12 cuts at 0.4-2x the SDM limit of the modes above (the session-14 audit's table, shipped with
+# the example)
+CUTS = (Path(__file__).resolve().parents[1] / "examples" / "kr500_acetal" / "cuts.csv").read_text()
 FIXED = ["--prior-sd", "frequency=0", "stiffness=0", "damping=0", "coefficients=0"]
 
 

@@ -255,3 +255,70 @@ def test_arnoldi_breakdown_keeps_a_complex_dominant_multiplier():
     dom, _ = _dominant(np.stack([real, broken]))
     np.testing.assert_allclose(np.abs(dom), np.abs([np.linalg.eigvals(m)[np.argmax(np.abs(np.linalg.eigvals(m)))]
                                                     for m in (real, broken)]), rtol=1e-8)
+
+
+def _tool_mode_problem(damping_ratio):
+    """Two tool modes (720 / 735 Hz, the kr500 example's), 2-flute 30 deg helix, 6 of 25.4 mm
+    down milling: at 500-1 000 rpm a tooth period holds 20-45 mode periods, reduced monodromies
+    of ~500-1 500 rows, where the multiplier is found without forming the matrix."""
+    model = ModalModel([720.0, 735.0], [damping_ratio] * 2, [4.0e6, 4.4e6], [[1, 0, 0], [0, 1, 0]])
+    cut = Cut(5e-4, 0.006, "down", feed_direction=[0, 1, 0], normal_direction=[-1, 0, 0])
+    return SDMProblem(model, Tool(2, 0.0254, np.radians(30.0)), cut, CuttingCoefficients(1.2e8, 4.5e7, 2e7))
+
+
+def _lapack_dominant(problem, rpm, depth, steps):
+    vals = np.linalg.eigvals(problem.monodromy(rpm, depth, steps))
+    return vals[np.argmax(np.abs(vals))]
+
+
+@pytest.mark.parametrize("rpm", [480.0, 900.0, 2500.0, 12000.0])
+def test_the_multiplier_found_without_the_matrix_is_lapacks(rpm):
+    """Matrix-free (large monodromies: ``MATRIX_FREE_MIN_SIZE``) or formed (small), the dominant
+    multiplier of depths on both sides of the limit is LAPACK's on the formed matrix, to the
+    Arnoldi residual test (1e-9 relative; 1e-8 leaves room for the eigenvalue's conditioning)."""
+    from stability import sdm
+
+    problem = _tool_mode_problem(0.02)
+    steps = int(steps_per_period(problem, [rpm], steps_per_mode_period=20.0, min_steps=40)[0])
+    depth = np.array([0.004, 0.008, 0.016])
+    rho, mu = problem._radii(np.full(3, rpm), depth, steps)
+    ref = np.array([_lapack_dominant(problem, rpm, a, steps) for a in depth])
+    np.testing.assert_allclose(np.abs(mu), np.abs(ref), rtol=1e-8)
+    np.testing.assert_allclose(rho, np.abs(ref), rtol=1e-8)
+    assert np.any(rho > 1) and np.any(rho < 1)  # the depths straddle the limit
+    size = problem.monodromy(rpm, depth[0], steps).shape[0]
+    assert (size >= sdm.MATRIX_FREE_MIN_SIZE) == (rpm < 3000)  # both paths are exercised
+
+
+def test_matrix_free_and_formed_multipliers_agree_to_rounding(monkeypatch):
+    """Where 20 Arnoldi vectors converge both paths run the same iteration from the same start
+    vector, so the multipliers agree to rounding (only the products' summation order differs)."""
+    from stability import sdm
+
+    problem = _tool_mode_problem(0.02)
+    rpm = np.full(3, 900.0)
+    depth = np.array([0.004, 0.008, 0.016])
+    steps = int(steps_per_period(problem, rpm[:1], steps_per_mode_period=20.0, min_steps=40)[0])
+    _, free = problem._radii(rpm, depth, steps)
+    monkeypatch.setattr(sdm, "MATRIX_FREE_MIN_SIZE", np.inf)
+    _, formed = problem._radii(rpm, depth, steps)
+    np.testing.assert_allclose(free, formed, rtol=1e-12)
+
+
+def test_a_multiplier_needing_more_krylov_vectors_is_lapacks():
+    """Strongly damped (5.4 %) at 800 rpm: two multipliers of nearly equal modulus, 20 Arnoldi
+    vectors do not converge; the matrix-free factorization, continued, gives LAPACK's multiplier
+    (the formed path falls back to LAPACK itself on a ~1 000-row matrix)."""
+    from stability import sdm
+    from stability._sdm_kernels import _KRYLOV, _RESIDUAL_RTOL, _arnoldi
+
+    problem = _tool_mode_problem(0.02 * np.e)
+    rpm, depth = 800.0, 0.0185
+    steps = int(steps_per_period(problem, [rpm], steps_per_mode_period=20.0, min_steps=40)[0])
+    mono = problem.monodromy(rpm, depth, steps)
+    assert mono.shape[0] >= sdm.MATRIX_FREE_MIN_SIZE
+    mu20, _, resid = _arnoldi(mono[None], _KRYLOV, False)
+    assert resid[0] > _RESIDUAL_RTOL * abs(mu20[0])  # the case needs the continuation
+    _, mu = problem._radii(np.array([rpm]), np.array([depth]), steps)
+    lapack = _lapack_dominant(problem, rpm, depth, steps)
+    assert min(abs(mu[0] - lapack), abs(mu[0] - np.conj(lapack))) <= 1e-8 * abs(lapack)  # either of a pair

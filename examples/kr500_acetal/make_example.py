@@ -25,7 +25,9 @@ Written files (relative to this directory):
   5 % stiffness, 2 deg direction) in series with the spindle/tool modes;
 - ``setup.yaml``: the planning setup; ``toolpath.yaml`` + ``toolpath.csv``: a path in the part
   frame (``workpiece_frame``) with the robot, its joints from inverse kinematics (rotation 0 about
-  the tool axis).
+  the tool axis);
+- ``cuts.csv``: 12 test cuts with outcomes for ``robomill learn`` (6-18 krpm at the setup's
+  engagement, at 0.4-2x the SDM limit of ``models/tool_mode.yaml``, marked by that limit).
 
 The milling records (and ``truth/robot_at_cut.yaml``) are simulated with the paper's modal model
 (10.5 / 24.8 / 9.6 Hz, along X / Y / Z) as before; the robot truth at the paper's pose (the middle
@@ -326,6 +328,29 @@ def write_setup_and_toolpath(out: Path, robot) -> None:
     write_toolpath(toolpath, out / "toolpath.yaml")
 
 
+#: The test cuts of ``cuts.csv``: speeds, and depths as multiples of the SDM limit of the tool
+#: mode at the setup's engagement (capped at ``CUT_MAX_DEPTH_M``, under the setup's 30 mm), the
+#: outcome that limit's; stable and chattering cuts alternate, as a shop's first cuts bracket it.
+CUT_SPEEDS_RPM = (6000.0, 7000.0, 8000.0, 9000.0, 10000.0, 12000.0, 13000.0, 14000.0, 15000.0, 16000.0,
+                  17000.0, 18000.0)
+CUT_LIMIT_FACTORS = (0.5, 1.5, 0.6, 1.8, 0.4, 1.5, 0.5, 2.0, 0.7, 1.5, 0.5, 1.5)
+CUT_MAX_DEPTH_M = 0.029
+
+
+def write_cuts(out: Path) -> None:
+    from planner.learn.likelihood import CHATTER, STABLE
+    from planner.learn.outcomes_io import CutTable, write_cuts as write_cut_table
+    from planner.learn.tables import reference_limits
+
+    rpm, factor = np.array(CUT_SPEEDS_RPM), np.array(CUT_LIMIT_FACTORS)
+    limit = reference_limits(TOOL_MODE, TOOL, PAPER_CUT, ACETAL.cutting_coefficients, rpm, method="sdm")
+    depth = np.round(np.minimum(factor * limit, CUT_MAX_DEPTH_M), 5)  # to 10 um, as a shop writes them
+    n = rpm.size
+    cuts = CutTable(rpm, depth, np.full(n, PAPER_CUT.radial_depth_m), np.full(n, PAPER_CUT.milling == "down"),
+                    np.where(depth < limit, STABLE, CHATTER), np.ones(n), np.full(n, np.nan), np.zeros(n, bool))
+    write_cut_table(cuts, out / "cuts.csv")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=HERE)
@@ -337,6 +362,7 @@ def main(argv=None) -> None:
         raise RuntimeError(f"PAPER_JOINTS_DEG is not the pose at the middle of the path: {paper.joints_deg[0]}")
     write_models(args.out, robot)
     write_setup_and_toolpath(args.out, robot)
+    write_cuts(args.out)
     write_records(args.out, rng)
     print(f"example written to {args.out}")
 

@@ -241,7 +241,7 @@ def lobes_for_improvement(posterior: Posterior, setup, rpm_range, *, n_rpm: int 
         k = rpm >= tab_lo * (1 - 1e-12)
         t0 = time.perf_counter()
         table = _table(post, setup, rpm[k], np.full(k.sum(), ae), np.full(k.sum(), mill == "down"), method=method,
-                       grid=None, known=table, desc="probability lobes: limit table")
+                       grid=None, known=table, desc="probability lobes: limit table", for_samples=True)
         spent += time.perf_counter() - t0
         tables += 1
         lobes = lobes_from_table(post, table, rpm[k], radial_depth_m=ae, milling=mill)
