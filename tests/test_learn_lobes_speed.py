@@ -22,7 +22,7 @@ from oma.modal_io import read_modal_model
 from planner.learn import tables
 from planner.learn.posterior import Posterior
 from planner.learn.predictive import lobes_from_table, probability_lobes
-from planner.learn.tables import Grid, build_table, reference_limits
+from planner.learn.tables import Grid, build_table, direct_log_limits, reference_limits
 from stability import sdm
 from stability.sdm import SDMProblem
 from stability.setup_io import read_setup
@@ -124,7 +124,7 @@ def test_probability_lobes_equal_the_dense_reference(example, monkeypatch):
     grid = Grid((float(u[:, 0].min()), float(u[:, 0].max())), 0.015, np.array([-0.5, 0.5]),
                 np.array([-0.45, 0.45]))
     rng = (900.0, 1250.0)
-    fast = probability_lobes(post, setup, rng, n_rpm=12, grid=grid)
+    fast = probability_lobes(post, setup, rng, n_rpm=12, grid=grid, check=0)  # the table alone
     monkeypatch.setattr(sdm, "MATRIX_FREE_MIN_SIZE", np.inf)  # the formed monodromy
     rpm = np.geomspace(*rng, 12)
     dense_table = build_table(model, setup.tool, setup.cut, post.coefficients, rpm,
@@ -135,3 +135,31 @@ def test_probability_lobes_equal_the_dense_reference(example, monkeypatch):
     np.testing.assert_allclose(fast.limits, ref.limits, rtol=OTHER_START_RTOL)
     for p in ref.levels:
         np.testing.assert_allclose(fast.quantiles[p], ref.quantiles[p], rtol=OTHER_START_RTOL)
+
+
+def test_the_lobes_carry_their_tables_measured_error(example):
+    """A table on a coarse node grid (damping and ``Krc/Ktc`` nodes 1.8 and 1.6 apart in log) is
+    off the directly solved limits by much more than the training cuts' error (0 here): the check
+    measures it, its estimate holds at other samples and speeds than it used (within a factor 2
+    of their RMS error), and the contours' soft boundary carries it."""
+    setup, model = example
+    u = _correlated_samples(60, 3)
+    post = Posterior(reference=model, coefficients=setup.material.cutting_coefficients,
+                     prior_log_sd=np.array([0.1, 0.3, 0.5, 0.25, 0.25]), samples=u,
+                     log_posterior=-np.sum(u ** 2, axis=1), method="zoa")
+    grid = Grid((float(u[:, 0].min()), float(u[:, 0].max())), 0.015, np.array([-0.9, 0.9]), np.array([-0.8, 0.8]))
+    rng, n_rpm = (9000.0, 14000.0), 41
+    lobes = probability_lobes(post, setup, rng, n_rpm=n_rpm, grid=grid, check=8, check_speeds=11)
+    assert post.likelihood.model_error == 0 and lobes.table_error > 0.05  # measured 0.15
+    assert lobes.scale == pytest.approx(np.hypot(post.likelihood.boundary_scale, lobes.table_error))
+    # elsewhere: 8 other samples (the check drew with seed 0 from the thinned posterior, here the
+    # same 60) at the speeds between the check's (its 11 of 41 are every 4th)
+    thin = post.thinned(400).samples  # the lobes' samples, in their order (the MAP first)
+    checked = np.random.default_rng(0).permutation(thin.shape[0])[:8]
+    others = np.setdiff1d(np.arange(thin.shape[0]), checked)[:8]
+    cols = np.arange(2, n_rpm, 4)
+    direct = direct_log_limits(model, setup.tool, setup.cut, post.coefficients, lobes.rpm[cols],
+                               np.full(cols.size, setup.cut.radial_depth_m), np.ones(cols.size, bool), thin[others],
+                               method="zoa", workers=1)
+    held_out = np.sqrt(np.mean((np.log(lobes.limits[np.ix_(others, cols)]) - direct) ** 2))
+    assert 0.5 < lobes.table_error / held_out < 2.0

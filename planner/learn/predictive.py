@@ -95,7 +95,10 @@ class ProbabilityLobes:
     ``quantiles`` maps a probability of stability ``p`` to the depth (m, per speed) at which the
     posterior predictive P(stable) is ``p`` (the module notes: the samples' limits and the soft
     boundary of width ``scale``); ``limits`` holds every sample's limit (n_samples, n_rpm);
-    ``model_error`` is the log-sd of the forward model's error in them (:meth:`limit_quantile`).
+    ``model_error`` is the log-sd of the forward model's error that ``learn`` measured at its
+    training cuts, ``table_error`` the RMS log error of these lobes' own table against limits
+    solved directly at some of their speeds (:func:`probability_lobes`; 0: not checked): the
+    larger is carried (:meth:`limit_quantile`, ``scale``).
     """
 
     rpm: np.ndarray
@@ -106,6 +109,7 @@ class ProbabilityLobes:
     milling: str
     scale: float = 0.0
     model_error: float = 0.0
+    table_error: float = 0.0
 
     def probability_stable(self, axial_depth_m) -> np.ndarray:
         """P(stable) at every speed for each depth: shape (n_depths, n_rpm); ``axial_depth_m``
@@ -119,12 +123,13 @@ class ProbabilityLobes:
     def limit_quantile(self, p: float) -> np.ndarray:
         """The depth (m, per speed) below which the limit itself lies with probability ``p``: the
         samples' limits with the forward model's log-normal error, no soft boundary."""
-        return depth_at_probability(np.log(self.limits), 1.0 - p, self.model_error, kernel="normal")
+        return depth_at_probability(np.log(self.limits), 1.0 - p, max(self.model_error, self.table_error),
+                                    kernel="normal")
 
     def to_dict(self) -> dict:
         return {"rpm": self.rpm.tolist(), "radial_depth_m": self.radial_depth_m, "milling": self.milling,
                 "depth_at_probability_m": {f"{p:g}": self.quantiles[p].tolist() for p in self.levels},
-                "boundary_width": self.scale, "model_error": self.model_error}
+                "boundary_width": self.scale, "model_error": self.model_error, "table_error": self.table_error}
 
     def plot(self, ax=None, *, cuts: CutTable | None = None):
         from .plots import plot_probability_lobes
@@ -134,29 +139,49 @@ class ProbabilityLobes:
 
 def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 150, method: str | None = None,
                       levels=(0.05, 0.5, 0.95), radial_depth_m: float | None = None, milling: str | None = None,
-                      max_samples: int = 400, grid: Grid | None = None) -> ProbabilityLobes:
-    """Lobes with probability contours at the setup's engagement (or the one given)."""
+                      max_samples: int = 400, grid: Grid | None = None, check: int = 8,
+                      check_speeds: int = 12) -> ProbabilityLobes:
+    """Lobes with probability contours at the setup's engagement (or the one given).
+
+    The table is checked where it is drawn, as :class:`ChanceLimit`'s: ``check`` of the samples
+    are solved directly at ``check_speeds`` of the lobes' speeds (spread over the range), and the
+    contours carry the larger of that RMS log error (``table_error``) and the error ``learn``
+    measured at its training cuts (``model_error``): the training cuts may lie where the table is
+    accurate (e.g. high speeds) and the lobes where it is not (low speeds, lobe cusps)."""
     ae = float(setup.cut.radial_depth_m if radial_depth_m is None else radial_depth_m)
     mill = setup.cut.milling if milling is None else milling
     rpm = np.geomspace(float(rpm_range[0]), float(rpm_range[1]), int(n_rpm))
     post = posterior.thinned(max_samples)
     table = _table(post, setup, rpm, np.full(rpm.size, ae), np.full(rpm.size, mill == "down"), method=method,
                    grid=grid, desc="probability lobes: limit table", for_samples=True)
-    return lobes_from_table(post, table, rpm, levels=levels, radial_depth_m=ae, milling=mill)
+    table_error = 0.0
+    if check > 0:
+        u = post.samples[np.random.default_rng(0).permutation(post.samples.shape[0])[:int(check)]]
+        cols = np.unique(np.round(np.linspace(0, rpm.size - 1, int(check_speeds))).astype(int))
+        direct = direct_log_limits(post.reference, setup.tool, setup.cut, post.coefficients, rpm[cols],
+                                   np.full(cols.size, ae), np.full(cols.size, mill == "down"), u,
+                                   method=method or post.method, sdm_steps=table.grid.sdm_steps,
+                                   desc="probability lobes: check")
+        err = post.log_limits(table, samples=u)[:, cols] - direct
+        table_error = float(np.sqrt(np.mean(err ** 2)))
+    return lobes_from_table(post, table, rpm, levels=levels, radial_depth_m=ae, milling=mill,
+                            table_error=table_error)
 
 
 def lobes_from_table(posterior: Posterior, table: LimitTable, rpm, *, radial_depth_m: float, milling: str,
-                     levels=(0.05, 0.5, 0.95)) -> ProbabilityLobes:
+                     levels=(0.05, 0.5, 0.95), table_error: float = 0.0) -> ProbabilityLobes:
     """The lobes of every sample of ``posterior`` through ``table``, a limit table over the speeds
     ``rpm`` at the engagement ``radial_depth_m``, ``milling`` (e.g. one table built over the
-    samples of several posteriors, each then interpolated)."""
+    samples of several posteriors, each then interpolated); ``table_error``: the table's own
+    measured RMS log error, carried where larger than the training cuts' ``model_error``."""
     log_lim = posterior.log_limits(table)
-    scale = float(posterior.likelihood.scale())
+    lk = posterior.likelihood
+    scale = float(lk.scale(max(lk.model_error, table_error)))
     quant = {float(p): readonly(depth_at_probability(log_lim, p, scale)) for p in levels}
     return ProbabilityLobes(rpm=readonly(np.asarray(rpm, dtype=float)), limits=readonly(np.exp(log_lim)),
                             levels=tuple(float(p) for p in levels), quantiles=quant,
                             radial_depth_m=float(radial_depth_m), milling=milling, scale=scale,
-                            model_error=float(posterior.likelihood.model_error))
+                            model_error=float(lk.model_error), table_error=float(table_error))
 
 
 class ChanceLimit:

@@ -217,7 +217,10 @@ def lobes_for_improvement(posterior: Posterior, setup, rpm_range, *, n_rpm: int 
     the incumbent found, until that is tabulated). The suggestions from them are those from the
     whole range, but for the depths considered (from the lobes' quantiles, now over these speeds)
     and for picks without expected improvement (fewer such cuts than asked: over the whole range
-    those are at its lowest speeds, and the caller should recompute there).
+    those are at its lowest speeds, and the caller should recompute there). Their table is not
+    checked against direct limits (``probability_lobes(..., check=0)``): they carry the error
+    ``learn`` measured at its training cuts, and the speeds that can win are the high ones, where
+    the table is most accurate (the kr500 example above 16 000 rpm: 0.001 in log).
 
     Returns
     -------
