@@ -21,7 +21,8 @@ import pytest
 from oma.modal_io import read_modal_model
 from planner.learn import tables
 from planner.learn.posterior import Posterior
-from planner.learn.predictive import lobes_from_table, probability_lobes
+from planner.learn.outcomes_io import CutTable
+from planner.learn.predictive import checked_predictions, lobes_from_table, probability_lobes
 from planner.learn.tables import Grid, build_table, direct_log_limits, reference_limits
 from stability import sdm
 from stability.sdm import SDMProblem
@@ -163,3 +164,35 @@ def test_the_lobes_carry_their_tables_measured_error(example):
                                method="zoa", workers=1)
     held_out = np.sqrt(np.mean((np.log(lobes.limits[np.ix_(others, cols)]) - direct) ** 2))
     assert 0.5 < lobes.table_error / held_out < 2.0
+
+
+def test_predictions_carry_their_tables_measured_error(example):
+    """``--predict`` checks its table as the lobes do (8 samples, 12 of the cuts spread over their
+    speeds): on the coarse node grid the error measured holds at the other cuts (within a factor
+    2 of their RMS error) and the predictions' soft boundary carries it."""
+    setup, model = example
+    u = _correlated_samples(60, 4)
+    post = Posterior(reference=model, coefficients=setup.material.cutting_coefficients,
+                     prior_log_sd=np.array([0.1, 0.3, 0.5, 0.25, 0.25]), samples=u,
+                     log_posterior=-np.sum(u ** 2, axis=1), method="zoa")
+    grid = Grid((float(u[:, 0].min()), float(u[:, 0].max())), 0.015, np.array([-0.9, 0.9]), np.array([-0.8, 0.8]))
+    n = 36
+    rpm = np.random.default_rng(5).permutation(np.geomspace(9000.0, 14000.0, n))  # any order
+    ae = np.where(np.arange(n) % 2, 0.006, 0.003)  # two engagements
+    cuts = CutTable(rpm, np.full(n, 0.004), ae, np.ones(n, bool), np.full(n, -1), np.ones(n), np.full(n, np.nan),
+                    np.zeros(n, bool))
+    p, err = checked_predictions(post, setup, cuts, grid=grid)
+    assert err > 0.05 and post.likelihood.model_error == 0
+    p0, err0 = checked_predictions(post, setup, cuts, grid=grid, check=0)
+    assert err0 == 0 and not np.allclose(p, p0)
+    # the error at cuts the check did not use, for other samples
+    checked = np.random.default_rng(0).permutation(u.shape[0])[:8]
+    others = np.setdiff1d(np.arange(u.shape[0]), checked)[:8]
+    used = np.argsort(rpm, kind="stable")[np.round(np.linspace(0, n - 1, 12)).astype(int)]
+    rest = np.setdiff1d(np.arange(n), used)
+    table = build_table(model, setup.tool, setup.cut, post.coefficients, rpm[rest], ae[rest], np.ones(rest.size, bool),
+                        grid, method="zoa", workers=1)
+    direct = direct_log_limits(model, setup.tool, setup.cut, post.coefficients, rpm[rest], ae[rest],
+                               np.ones(rest.size, bool), u[others], method="zoa", workers=1)
+    held_out = np.sqrt(np.mean((post.log_limits(table, samples=u[others]) - direct) ** 2))
+    assert 0.5 < err / held_out < 2.0

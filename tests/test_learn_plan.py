@@ -122,6 +122,8 @@ def test_lobes_with_a_posterior(case, capsys):
     assert code == 0
     q = out["probability_lobes"]["depth_at_probability_m"]
     assert np.all(np.array(q["0.95"]) <= np.array(q["0.5"])) and np.all(np.array(q["0.5"]) <= np.array(q["0.05"]))
+    lobes = out["probability_lobes"]  # the larger of the table's checked error and the training cuts' is carried
+    assert lobes["table_error"] > 0 and lobes["boundary_width"] >= max(lobes["table_error"], lobes["model_error"])
 
 
 def test_a_posterior_of_several_modes_keeps_its_mode_spread_through_its_file(tmp_path):

@@ -135,7 +135,7 @@ def _cmd_learn(args) -> int:
 
     from .outcomes_io import expected_chatter_frequency, read_cuts
     from .posterior_io import MAX_WRITTEN_SAMPLES, write_posterior_model
-    from .predictive import predict_cuts, probability_lobes
+    from .predictive import checked_predictions, probability_lobes
     from .speed_range import lobes_for_improvement
     from .suggest import MIN_SPEED_GAP, allowed_depths, suggest_cuts
     from .update import learn
@@ -185,12 +185,14 @@ def _cmd_learn(args) -> int:
     payload = result.to_dict()
     payload["warnings"] = input_warnings + payload["warnings"]
     payload["predictions"] = None
+    payload["predictions_table_error"] = None
     payload["suggested"] = None
     timings = payload["timings_s"] = dict(payload["timings_s"], learn=payload["timings_s"]["total"])
     t0 = time.perf_counter()
     if to_predict is not None:
-        p = predict_cuts(post, setup, to_predict, method=args.method)
+        p, err = checked_predictions(post, setup, to_predict, method=args.method)
         payload["predictions"] = [{"index": i, "probability_stable": float(x)} for i, x in enumerate(p)]
+        payload["predictions_table_error"] = err
         timings["predict"] = time.perf_counter() - t0
     lobes, speeds = None, None
     t0 = time.perf_counter()

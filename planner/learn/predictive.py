@@ -29,7 +29,8 @@ from .outcomes_io import CutTable
 from .posterior import Posterior
 from .tables import FINE_NODES, Grid, LimitTable, build_table, direct_log_limits
 
-__all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "probability_lobes", "lobes_from_table",
+__all__ = ["ProbabilityLobes", "predictive_grid", "predict_cuts", "checked_predictions", "table_error",
+           "probability_lobes", "lobes_from_table",
            "ChanceLimit", "depth_at_probability", "UNTABULATED_DEPTH_M"]
 
 #: The chance depth outside a :class:`ChanceLimit`'s speed range: none certified (1 nm rather
@@ -61,12 +62,53 @@ def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: st
                        samples=posterior.samples if for_samples else None, zoa_start=for_samples, desc=desc)
 
 
+def table_error(posterior: Posterior, setup, table: LimitTable, cols, *, samples: int = 8,
+                method: str | None = None, desc: str = "limit table: check") -> float:
+    """RMS log error of ``table`` at its cuts ``cols`` (indices) against the limits of ``samples``
+    of the posterior's samples (drawn reproducibly) solved directly: the table's own error where it
+    is read, which the error ``learn`` measured at its training cuts (``model_error``) need not be
+    (the cuts may lie where the table is accurate, high speeds, and the reads where it is not,
+    low speeds and lobe cusps)."""
+    cols = np.asarray(cols, dtype=int)
+    u = posterior.samples[np.random.default_rng(0).permutation(posterior.samples.shape[0])[:int(samples)]]
+    ae = np.array([table.engagements[g][0] for g in table.group[cols]])
+    down = np.array([table.engagements[g][1] for g in table.group[cols]])
+    direct = direct_log_limits(posterior.reference, setup.tool, setup.cut, posterior.coefficients, table.rpm[cols], ae,
+                               down, u, method=method or posterior.method, sdm_steps=table.grid.sdm_steps, desc=desc)
+    err = posterior.log_limits(table, samples=u)[:, cols] - direct
+    return float(np.sqrt(np.mean(err ** 2)))
+
+
+def spread(n: int, k: int, order=None) -> np.ndarray:
+    """``k`` of ``n`` indices spread evenly along ``order`` (default: as they come), ends kept."""
+    order = np.arange(n) if order is None else np.asarray(order)
+    return np.unique(order[np.round(np.linspace(0, n - 1, min(int(k), n))).astype(int)])
+
+
 def predict_cuts(posterior: Posterior, setup, cuts: CutTable, *, method: str | None = None,
-                 grid: Grid | None = None) -> np.ndarray:
-    """Posterior probability that each cut is stable, shape (n_cuts,)."""
+                 grid: Grid | None = None, check: int = 8, check_cuts: int = 12) -> np.ndarray:
+    """Posterior probability that each cut is stable, shape (n_cuts,).
+
+    The table is checked where it is read (:func:`table_error`: ``check`` samples solved directly
+    at ``check_cuts`` of the cuts, spread over their speeds), and the predictions carry the larger
+    of that error and ``model_error`` in their soft boundary (``check=0``: ``model_error`` alone;
+    :func:`checked_predictions` also returns the error measured)."""
+    return checked_predictions(posterior, setup, cuts, method=method, grid=grid, check=check,
+                               check_cuts=check_cuts)[0]
+
+
+def checked_predictions(posterior: Posterior, setup, cuts: CutTable, *, method: str | None = None,
+                        grid: Grid | None = None, check: int = 8, check_cuts: int = 12) -> tuple[np.ndarray, float]:
+    """:func:`predict_cuts` and the table error its predictions carry (0: not checked)."""
     table = _table(posterior, setup, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down, method=method, grid=grid,
                    desc="predictions: limit table")
-    return posterior.probability_stable(table, cuts.axial_depth_m)
+    err = 0.0
+    if check > 0 and cuts.n_cuts:
+        cols = spread(cuts.n_cuts, check_cuts, np.argsort(cuts.spindle_rpm, kind="stable"))
+        err = table_error(posterior, setup, table, cols, samples=check, method=method, desc="predictions: check")
+    lk = posterior.likelihood
+    ratio = np.log(np.asarray(cuts.axial_depth_m, dtype=float))[None, :] - posterior.log_limits(table)
+    return np.mean(1.0 - lk.p_chatter(ratio, model_error=max(lk.model_error, err)), axis=0), err
 
 
 def depth_at_probability(log_limits: np.ndarray, probability: float, scale: float, *,
@@ -154,18 +196,9 @@ def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 15
     post = posterior.thinned(max_samples)
     table = _table(post, setup, rpm, np.full(rpm.size, ae), np.full(rpm.size, mill == "down"), method=method,
                    grid=grid, desc="probability lobes: limit table", for_samples=True)
-    table_error = 0.0
-    if check > 0:
-        u = post.samples[np.random.default_rng(0).permutation(post.samples.shape[0])[:int(check)]]
-        cols = np.unique(np.round(np.linspace(0, rpm.size - 1, int(check_speeds))).astype(int))
-        direct = direct_log_limits(post.reference, setup.tool, setup.cut, post.coefficients, rpm[cols],
-                                   np.full(cols.size, ae), np.full(cols.size, mill == "down"), u,
-                                   method=method or post.method, sdm_steps=table.grid.sdm_steps,
-                                   desc="probability lobes: check")
-        err = post.log_limits(table, samples=u)[:, cols] - direct
-        table_error = float(np.sqrt(np.mean(err ** 2)))
-    return lobes_from_table(post, table, rpm, levels=levels, radial_depth_m=ae, milling=mill,
-                            table_error=table_error)
+    err = 0.0 if check <= 0 else table_error(post, setup, table, spread(rpm.size, check_speeds), samples=check,
+                                             method=method, desc="probability lobes: check")
+    return lobes_from_table(post, table, rpm, levels=levels, radial_depth_m=ae, milling=mill, table_error=err)
 
 
 def lobes_from_table(posterior: Posterior, table: LimitTable, rpm, *, radial_depth_m: float, milling: str,
