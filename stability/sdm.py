@@ -321,7 +321,7 @@ class SDMProblem:
             return np.abs(mu), mu
         mu = _dominant_matrix_free(phi, gd, lam, cutting, col_of, row_of, self.s_mat, size)
         left = np.isnan(mu)
-        if left.any():  # not converged at 160 vectors, or an invariant subspace: LAPACK
+        if left.any():  # not converged at 160 vectors, or an invariant subspace: the formed path
             mu[left] = _dominant(self._assemble(phi[left], gd[left], lam[left], cutting)[0])[0]
         return np.abs(mu), mu
 
