@@ -87,6 +87,16 @@ def _correlated_samples(n: int, seed: int) -> np.ndarray:
     return u
 
 
+def _posterior_and_grid(setup, model, u, method, zeta_nodes, ratio_nodes):
+    """A posterior of the samples ``u`` (log-multipliers of the example's tool modes), and a grid
+    over their frequency factors with these damping and ``Krc/Ktc`` nodes."""
+    post = Posterior(reference=model, coefficients=setup.material.cutting_coefficients,
+                     prior_log_sd=np.array([0.1, 0.3, 0.5, 0.25, 0.25]), samples=u,
+                     log_posterior=-np.sum(u ** 2, axis=1), method=method)
+    return post, Grid((float(u[:, 0].min()), float(u[:, 0].max())), 0.015, np.asarray(zeta_nodes),
+                      np.asarray(ratio_nodes))
+
+
 def test_a_table_for_samples_holds_the_whole_tables_values_where_they_read(example, monkeypatch):
     """``build_table(..., samples=)`` solves fewer entries; those it solves equal the whole
     table's, the others are NaN (a parameter set reading them gets NaN, not a number), and the
@@ -119,11 +129,7 @@ def test_probability_lobes_equal_the_dense_reference(example, monkeypatch):
     depths, to the searches' tolerance."""
     setup, model = example
     u = _correlated_samples(80, 2)
-    post = Posterior(reference=model, coefficients=setup.material.cutting_coefficients,
-                     prior_log_sd=np.array([0.1, 0.3, 0.5, 0.25, 0.25]), samples=u,
-                     log_posterior=-np.sum(u ** 2, axis=1), method="sdm")
-    grid = Grid((float(u[:, 0].min()), float(u[:, 0].max())), 0.015, np.array([-0.5, 0.5]),
-                np.array([-0.45, 0.45]))
+    post, grid = _posterior_and_grid(setup, model, u, "sdm", [-0.5, 0.5], [-0.45, 0.45])
     rng = (900.0, 1250.0)
     fast = probability_lobes(post, setup, rng, n_rpm=12, grid=grid, check=0)  # the table alone
     monkeypatch.setattr(sdm, "MATRIX_FREE_MIN_SIZE", np.inf)  # the formed monodromy
@@ -145,10 +151,7 @@ def test_the_lobes_carry_their_tables_measured_error(example):
     of their RMS error), and the contours' soft boundary carries it."""
     setup, model = example
     u = _correlated_samples(60, 3)
-    post = Posterior(reference=model, coefficients=setup.material.cutting_coefficients,
-                     prior_log_sd=np.array([0.1, 0.3, 0.5, 0.25, 0.25]), samples=u,
-                     log_posterior=-np.sum(u ** 2, axis=1), method="zoa")
-    grid = Grid((float(u[:, 0].min()), float(u[:, 0].max())), 0.015, np.array([-0.9, 0.9]), np.array([-0.8, 0.8]))
+    post, grid = _posterior_and_grid(setup, model, u, "zoa", [-0.9, 0.9], [-0.8, 0.8])  # coarse nodes
     rng, n_rpm = (9000.0, 14000.0), 41
     lobes = probability_lobes(post, setup, rng, n_rpm=n_rpm, grid=grid, check=8, check_speeds=11)
     assert post.likelihood.model_error == 0 and lobes.table_error > 0.05  # measured 0.15
@@ -172,10 +175,7 @@ def test_predictions_carry_their_tables_measured_error(example):
     2 of their RMS error) and the predictions' soft boundary carries it."""
     setup, model = example
     u = _correlated_samples(60, 4)
-    post = Posterior(reference=model, coefficients=setup.material.cutting_coefficients,
-                     prior_log_sd=np.array([0.1, 0.3, 0.5, 0.25, 0.25]), samples=u,
-                     log_posterior=-np.sum(u ** 2, axis=1), method="zoa")
-    grid = Grid((float(u[:, 0].min()), float(u[:, 0].max())), 0.015, np.array([-0.9, 0.9]), np.array([-0.8, 0.8]))
+    post, grid = _posterior_and_grid(setup, model, u, "zoa", [-0.9, 0.9], [-0.8, 0.8])  # coarse nodes
     n = 36
     rpm = np.random.default_rng(5).permutation(np.geomspace(9000.0, 14000.0, n))  # any order
     ae = np.where(np.arange(n) % 2, 0.006, 0.003)  # two engagements
