@@ -5,7 +5,8 @@ Old: the limit table over the posterior's whole box (every lattice point of the 
 damping and ``Krc/Ktc`` node), each SDM multiplier from the formed monodromy
 (``stability.sdm.MATRIX_FREE_MIN_SIZE`` set to infinity), searches from 1 mm. New:
 :func:`planner.learn.predictive.probability_lobes` as shipped (the multipliers matrix-free, only
-the table entries the samples read). Both fill the table with the default worker count.
+the table entries the samples read, and since the table check its direct solves of 8 samples at
+12 speeds, which the old path did not have). Both fill the table with the default worker count.
 
 Cases:
 
@@ -32,8 +33,6 @@ of 4); ``--quick``: the synthetic seeds 0 and 1, one run each (3 min).
 from __future__ import annotations
 
 import argparse
-import os
-import statistics
 import sys
 import tempfile
 import time
@@ -44,31 +43,16 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from planner.learn import tables  # noqa: E402
 from planner.learn.posterior import PriorSD  # noqa: E402
 from planner.learn.predictive import lobes_from_table, predictive_grid, probability_lobes  # noqa: E402
 from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits  # noqa: E402
 from stability import sdm  # noqa: E402
+from _timing import median_time  # noqa: E402
 
 EXAMPLE = ROOT / "examples" / "kr500_acetal"
-
-
-def cpu_s() -> float:
-    """CPU time of this process and its finished children (the table's forked workers), s."""
-    t = os.times()
-    return t.user + t.system + t.children_user + t.children_system
-
-
-def timed(fn, repeats: int):
-    """Median wall and CPU time of ``repeats`` runs, s, and the last result."""
-    wall, cpu, out = [], [], None
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), cpu_s()
-        out = fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(cpu_s() - c0)
-    return statistics.median(wall), statistics.median(cpu), out
 
 
 @contextmanager
@@ -144,8 +128,8 @@ def synthetic_case(seed: int, log):
 
 
 def compare(name, post, setup, rpm_range, repeats, old_repeats, log):
-    t_old, c_old, (old, t_o) = timed(lambda: old_lobes(post, setup, rpm_range), old_repeats)
-    t_new, c_new, (new, t_n) = timed(lambda: new_lobes(post, setup, rpm_range), repeats)
+    t_old, c_old, (old, t_o) = median_time(lambda: old_lobes(post, setup, rpm_range), old_repeats, children=True)
+    t_new, c_new, (new, t_n) = median_time(lambda: new_lobes(post, setup, rpm_range), repeats, children=True)
     solved_old = sum(int(np.isfinite(v).sum()) for v in t_o.values)
     solved_new = sum(int(np.isfinite(v).sum()) for v in t_n.values)
     d = np.concatenate([np.log(new.quantiles[p] / old.quantiles[p]) for p in old.levels])

@@ -59,7 +59,7 @@ class UnexplainedPeak:
 
 
 def unexplained_peaks(residuals, sample_rate_hz: float, band_hz, freq_hz, damping_ratio, lines_hz=(), *,
-                      line_halfwidth_hz: float = 0.0, ratio: float = PEAK_RATIO, segment_s: float = SEGMENT_S,
+                      line_relative_halfwidth: float = 0.0, ratio: float = PEAK_RATIO, segment_s: float = SEGMENT_S,
                       axes=None) -> list[UnexplainedPeak]:
     """Peaks of the residual spectra that no mode explains (module docstring).
 
@@ -73,10 +73,11 @@ def unexplained_peaks(residuals, sample_rate_hz: float, band_hz, freq_hz, dampin
     freq_hz, damping_ratio : array_like
         The identified modes.
     lines_hz : array_like
-        Milling lines of every record (peaks within two bins, or ``line_halfwidth_hz``, of one are
-        left out: a remainder of a line is not a mode).
-    line_halfwidth_hz : float
-        Extra half-width around each line (a tracked speed's wander).
+        Milling lines of every record (peaks within two bins, plus ``line_relative_halfwidth`` times
+        the line's frequency, of one are left out: a remainder of a line is not a mode).
+    line_relative_halfwidth : float
+        Extra half-width around each line as a share of its frequency (a tracked speed's relative
+        wander, ``ResponseHarmonics.speed_variation``).
     axes : sequence of int, optional
         The axis index of each channel (default 0, 1, 2 ...).
 
@@ -106,7 +107,7 @@ def unexplained_peaks(residuals, sample_rate_hz: float, band_hz, freq_hz, dampin
     lines = np.asarray(lines_hz, dtype=float).ravel()
     near_line = np.zeros(f.size, dtype=bool)
     for fl in lines:
-        near_line |= np.abs(f - fl) <= 2 * df + line_halfwidth_hz * fl
+        near_line |= np.abs(f - fl) <= 2 * df + line_relative_halfwidth * fl
     tol = np.maximum(3.0 * modes_z * modes_f, 2 * df)
     axes = list(range(psd.shape[0])) if axes is None else list(axes)
     out = []

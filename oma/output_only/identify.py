@@ -257,17 +257,16 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                             "mode), a milling line not removed, or an electrical line; the model is not trusted")
     # a peak of a channel's spectrum that no mode explains (a mode SSI missed: session 16, one 5 s
     # record in twelve of an independent generator lost a 17 Hz Z mode and was trusted)
-    peaks = unexplained_peaks([h.residual for h in modes.harmonics], fs, modes.band_hz, modes.freq_hz,
-                              modes.damping_ratio, np.concatenate([h.freq_hz for h in modes.harmonics]),
-                              line_halfwidth_hz=max(h.speed_variation for h in modes.harmonics),
-                              axes=np.flatnonzero(axes))
+    residuals = [h.residual for h in modes.harmonics]
+    lines = np.concatenate([h.freq_hz for h in modes.harmonics])
+    wander = max(h.speed_variation for h in modes.harmonics)
+    identified = (fs, modes.band_hz, modes.freq_hz, modes.damping_ratio, lines)
+    peaks = unexplained_peaks(residuals, *identified, line_relative_halfwidth=wander, axes=np.flatnonzero(axes))
     warnings += [pk.describe() for pk in peaks]
     # a mode whose band holds two shapes of response: two modes taken for one (session 17: the
     # 10.0 / 10.5 Hz pair merged in 29 of 60 5 s records of the audit's generator, 7 trusted)
-    unresolved = unresolved_modes([h.residual for h in modes.harmonics], fs, modes.band_hz, modes.freq_hz,
-                                  modes.damping_ratio, np.concatenate([h.freq_hz for h in modes.harmonics]),
-                                  derivative=MOTION_QUANTITIES.index(quantity),
-                                  line_relative_halfwidth=max(h.speed_variation for h in modes.harmonics))
+    unresolved = unresolved_modes(residuals, *identified, derivative=MOTION_QUANTITIES.index(quantity),
+                                  line_relative_halfwidth=wander)
     warnings += [u.describe() for u in unresolved]
     stiffness = None
     used = "none"

@@ -339,7 +339,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         # SSI cluster: session 16, a 17 Hz Z mode 4662 times its channel's median in a 5 s record)
         # is seeded for the refinement, whose evidence gate keeps it only if the spectrum supports it
         wander = max((h.speed_variation for h in harmonics), default=0.0)
-        peaks = unexplained_peaks(raw, fs, (lo, hi), f_hat, z_hat, lines, line_halfwidth_hz=wander,
+        peaks = unexplained_peaks(raw, fs, (lo, hi), f_hat, z_hat, lines, line_relative_halfwidth=wander,
                                   ratio=SEED_PEAK_RATIO)
         seeds = sorted({round(p.freq_hz, 6) for p in peaks})
         if seeds:

@@ -62,6 +62,11 @@ def _table(posterior: Posterior, setup, rpm, radial_depth_m, down, *, method: st
                        samples=posterior.samples if for_samples else None, zoa_start=for_samples, desc=desc)
 
 
+def _drawn(posterior: Posterior, n: int, *, seed: int) -> np.ndarray:
+    """``n`` of the posterior's samples (log-multipliers), drawn without replacement, reproducibly."""
+    return posterior.samples[np.random.default_rng(seed).permutation(posterior.samples.shape[0])[:int(n)]]
+
+
 def table_error(posterior: Posterior, setup, table: LimitTable, cols, *, samples: int = 8,
                 method: str | None = None, desc: str = "limit table: check") -> float:
     """RMS log error of ``table`` at its cuts ``cols`` (indices) against the limits of ``samples``
@@ -70,7 +75,7 @@ def table_error(posterior: Posterior, setup, table: LimitTable, cols, *, samples
     (the cuts may lie where the table is accurate, high speeds, and the reads where it is not,
     low speeds and lobe cusps)."""
     cols = np.asarray(cols, dtype=int)
-    u = posterior.samples[np.random.default_rng(0).permutation(posterior.samples.shape[0])[:int(samples)]]
+    u = _drawn(posterior, samples, seed=0)
     ae = np.array([table.engagements[g][0] for g in table.group[cols]])
     down = np.array([table.engagements[g][1] for g in table.group[cols]])
     direct = direct_log_limits(posterior.reference, setup.tool, setup.cut, posterior.coefficients, table.rpm[cols], ae,
@@ -277,18 +282,12 @@ class ChanceLimit:
         t1 = time.perf_counter()
         self.table_error = 0.0
         if check > 0:
-            u = self._draw(check, seed=0)
             r = np.geomspace(*self.rpm_range, int(check_speeds))
-            err = self.posterior.log_limits(self._at(r), samples=u) - self._direct(r, u, desc="chance limit: check")
-            self.table_error = float(np.sqrt(np.mean(err ** 2)))
+            self.table_error = table_error(self.posterior, setup, self._at(r), np.arange(r.size), samples=check,
+                                           method=self._method, desc="chance limit: check")
         self.timings_s = {"table": t1 - t0, "check": time.perf_counter() - t1}
         lk = self.posterior.likelihood
         self.boundary_width = float(lk.scale(max(lk.model_error, self.table_error)))
-
-    def _draw(self, n: int, *, seed: int) -> np.ndarray:
-        """``n`` of the samples (log-multipliers), drawn without replacement, reproducibly."""
-        samples = self.posterior.samples
-        return samples[np.random.default_rng(seed).permutation(samples.shape[0])[:int(n)]]
 
     def _direct(self, rpm, u, *, desc: str = "chance limit: direct limits") -> np.ndarray:
         """The log limits of the samples ``u`` at the speeds ``rpm`` solved directly (no table),
@@ -324,7 +323,7 @@ class ChanceLimit:
         mean. ``holds``: not below the level by more than two standard errors. The plan's speed is
         usually on a lobe's peak, where a table interpolates least well; this is where it matters."""
         lk, log_a = self.posterior.likelihood, np.log(axial_depth_m)
-        direct = self._direct(rpm, self._draw(samples, seed=1), desc="plan check: direct limits")[:, 0]
+        direct = self._direct(rpm, _drawn(self.posterior, samples, seed=1), desc="plan check: direct limits")[:, 0]
         p = 1.0 - lk.p_chatter(log_a - direct)
         se = float(np.std(p, ddof=1) / np.sqrt(p.size)) if p.size > 1 else float("nan")
         table = np.log(self.samples([rpm])[:, 0])

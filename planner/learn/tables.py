@@ -141,19 +141,13 @@ class LimitTable:
                                         (u_f, u_k, u_zeta, u_kt, u_kr))
         cuts = np.arange(self.n_cuts) if cuts is None else np.asarray(cuts, dtype=int)
         out = np.empty((u_f.size, cuts.size))
-        f_lo, f_hi = self.grid.log_f_range
-        h = self.grid.log_speed_step
-        uf = np.clip(u_f, f_lo, f_hi)
         zw = _bracket(self.grid.log_zeta, u_zeta)
         rw = _bracket(self.grid.log_ratio, u_kr - u_kt)
         for g in np.unique(self.group[cuts]):
             cols = np.flatnonzero(self.group[cuts] == g)
-            lat, val = self.lattice[g], self.values[g]
-            x = (np.log(self.rpm[cuts[cols]])[None, :] - uf[:, None]) / h  # (N, c) lattice units
-            i0 = np.floor(x).astype(np.int64)
-            t = x - i0
-            r0 = np.clip(np.searchsorted(lat, i0), 0, lat.size - 2)
-            acc = np.zeros(x.shape)
+            val = self.values[g]
+            r0, t = _lattice_bracket(self.grid, self.lattice[g], self.rpm[cuts[cols]], u_f)
+            acc = np.zeros(t.shape)
             for (iz, wz) in zw:
                 for (ir, wr) in rw:
                     w = (wz * wr)[:, None]
@@ -161,6 +155,16 @@ class LimitTable:
                                 t * val[r0 + 1, iz[:, None], ir[:, None]])
             out[:, cols] = acc
         return out + (u_k - u_kt)[:, None]
+
+
+def _lattice_bracket(grid: Grid, lattice: np.ndarray, rpm, u_f):
+    """Row ``r0`` of the lower of the two lattice points bracketing each speed for each frequency
+    factor (the speed scaled by ``exp(-u_f)``, ``u_f`` clipped to the grid's range), and the
+    weight ``t`` of the upper one: both (n_samples, n_speeds)."""
+    uf = np.clip(u_f, *grid.log_f_range)
+    x = (np.log(rpm)[None, :] - uf[:, None]) / grid.log_speed_step  # lattice units
+    i0 = np.floor(x).astype(np.int64)
+    return np.clip(np.searchsorted(lattice, i0), 0, lattice.size - 2), x - i0
 
 
 def _bracket(nodes: np.ndarray, x: np.ndarray):
@@ -399,10 +403,7 @@ def _entries_read(grid: Grid, lattice: np.ndarray, rpm: np.ndarray, samples: np.
     :meth:`LimitTable.log_limit` reads for the ``samples`` at the speeds ``rpm``: the two lattice
     points and the damping and ratio nodes bracketing each (a bracket's node counts even at
     weight 0: the product with a NaN would be NaN)."""
-    h = grid.log_speed_step
-    uf = np.clip(samples[:, 0], *grid.log_f_range)
-    i0 = np.floor((np.log(rpm)[None, :] - uf[:, None]) / h).astype(np.int64)  # as log_limit
-    r0 = np.clip(np.searchsorted(lattice, i0), 0, lattice.size - 2)
+    r0, _ = _lattice_bracket(grid, lattice, rpm, samples[:, 0])
     need = np.zeros((lattice.size, grid.log_zeta.size, grid.log_ratio.size), dtype=bool)
     for iz, _ in _bracket(grid.log_zeta, samples[:, 2]):
         for ir, _ in _bracket(grid.log_ratio, samples[:, 4] - samples[:, 3]):
