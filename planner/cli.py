@@ -145,7 +145,7 @@ def _cmd_identify_output_only(args) -> int:
             su = mode["stiffness_uncertainty"]
             k = f"k {su['stiffness_N_m']:.3g} N/m +-{100 * su['relative_sd']:.0f} %" if su["stiffness_N_m"] else "k ?"
             if su.get("scaled_by") == "background":
-                k += " (background level)"
+                k += f" (background level, from the {(p.get('background_force') or {}).get('source', 'resonances')})"
             lines.append(f"  {mode['natural_frequency_hz']:7.2f} Hz [{mode['frequency_interval_hz'][0]:.2f}, "
                          f"{mode['frequency_interval_hz'][1]:.2f}]  zeta {100 * mode['damping_ratio']:5.2f} % "
                          f"[{100 * mode['damping_interval'][0]:.2f}, {100 * mode['damping_interval'][1]:.2f}]  {k}  "

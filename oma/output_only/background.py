@@ -66,6 +66,9 @@ class BackgroundLevel:
     consistent : bool
         The reference modes' levels agree within their errors and the allowed spread (chi-square
         test at 1 %).
+    source : str
+        Where the levels come from: ``'resonances'`` (the refinement's, at each mode's resonance)
+        or ``'mass lines'`` (:mod:`oma.output_only.mass_line`: the band outside the resonances).
     """
 
     psd_N2_Hz: float
@@ -75,6 +78,7 @@ class BackgroundLevel:
     per_mode_psd_N2_Hz: np.ndarray
     per_mode_log_se: np.ndarray
     consistent: bool
+    source: str = "resonances"
 
     def __post_init__(self):
         object.__setattr__(self, "reference", _ro(self.reference, int))
@@ -89,12 +93,12 @@ class BackgroundLevel:
             "log_standard_error": float(self.log_se), "anisotropy_log_sd": float(self.anisotropy_log_sd),
             "reference_modes": [int(k) for k in self.reference],
             "per_mode_white_variance_N2": [float(v * fs) if np.isfinite(v) else None for v in self.per_mode_psd_N2_Hz],
-            "consistent": bool(self.consistent),
+            "consistent": bool(self.consistent), "source": self.source,
         }
 
 
 def background_level(scaling: StiffnessScaling, input_level, input_level_log_se, *,
-                     anisotropy_log_sd: float = ANISOTROPY_LOG_SD) -> BackgroundLevel | None:
+                     anisotropy_log_sd: float = ANISOTROPY_LOG_SD, source: str = "resonances") -> BackgroundLevel | None:
     """The background force's level from the modes the lines scale well (module docstring).
 
     Parameters
@@ -106,6 +110,8 @@ def background_level(scaling: StiffnessScaling, input_level, input_level_log_se,
         (:class:`oma.output_only.modes.OutputOnlyModes`).
     anisotropy_log_sd : float
         Least spread of ``log psd`` between directions.
+    source : str
+        Where the levels come from (:attr:`BackgroundLevel.source`).
 
     Returns
     -------
@@ -138,7 +144,7 @@ def background_level(scaling: StiffnessScaling, input_level, input_level_log_se,
     per_mode[ref], per_se[ref] = np.exp(y), np.sqrt(var)
     return BackgroundLevel(psd_N2_Hz=float(np.exp(mean)), log_se=float(np.sqrt(1.0 / np.sum(wr))),
                            anisotropy_log_sd=tau, reference=ref, per_mode_psd_N2_Hz=per_mode,
-                           per_mode_log_se=per_se, consistent=bool(consistent))
+                           per_mode_log_se=per_se, consistent=bool(consistent), source=source)
 
 
 def scale_by_background(scaling: StiffnessScaling, background: BackgroundLevel, input_level, input_level_log_se,

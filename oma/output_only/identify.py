@@ -25,6 +25,7 @@ from ..timefit import resolved_band_hz
 from .background import ANISOTROPY_LOG_SD, BackgroundLevel, background_level, scale_by_background
 from .coverage import unexplained_peaks
 from .harmonics import STEADY_SEGMENTS, cutting_window, strongest_line_hz
+from .mass_line import mass_line_levels
 from .modes import OutputOnlyModes, output_only_modes
 from .resolution import unresolved_modes
 from .scaling import StiffnessScaling, line_misfit, scale_modes, tooth_force_harmonics, with_spindle
@@ -45,6 +46,10 @@ MAX_LINE_MISFIT = 4.0
 #: above the band chi-square 0.8-1.9 (the ratio reaches 4 on Z, whose lines are noise there); with
 #: the example's tool modes (720 / 735 Hz) chi-square 56-5600 and the ratio 5.5-6.3 on X and Y.
 LINE_DISCREPANCY = 0.5
+#: The mass lines' fit (:mod:`oma.output_only.mass_line`) gives the background's scale only where
+#: its deviance ratio is at most this; else the resonances' levels do. Measured (session 18, 60
+#: benchmark records of the tooth, runout and on-mode cases): 1.00-1.22.
+MAX_MASS_LINE_MISFIT = 1.5
 AXES = ("X", "Y", "Z")
 
 
@@ -293,11 +298,13 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                     + " from the data alone)")
             lines_scaling = stiffness
             if background_anisotropy is not None and np.any(stiffness.too_far):
-                background = background_level(stiffness, modes.input_level, modes.input_level_log_se,
-                                              anisotropy_log_sd=background_anisotropy)
+                levels, mass_lines = _background_levels(
+                    residuals, fs, modes, axes, quantity, lines, stiffness.too_far,
+                    max_line_hz if max_line_hz is not None else 1.5 * band_hz[1])
+                background = background_level(stiffness, *levels, anisotropy_log_sd=background_anisotropy,
+                                              source="mass lines" if mass_lines else "resonances")
                 if background is not None:
-                    stiffness, by_background = scale_by_background(stiffness, background, modes.input_level,
-                                                                   modes.input_level_log_se, level=level)
+                    stiffness, by_background = scale_by_background(stiffness, background, *levels, level=level)
                 if not np.any(by_background):
                     background = None
                 else:
@@ -338,6 +345,28 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                                     unexplained_peaks=tuple(peaks), unresolved_modes=tuple(unresolved))
 
 
+def _background_levels(residuals, fs, modes: OutputOnlyModes, axes, quantity, lines, too_far, top_hz):
+    """The modes' input levels for the background's scale, and whether they come from the mass
+    lines (:mod:`oma.output_only.mass_line`; accelerations only): those where the band outside the
+    modes' resonances holds enough bins, the fit explains them (deviance ratio at most
+    :data:`MAX_MASS_LINE_MISFIT`) and they measure every mode to be scaled (``too_far``) more
+    precisely than its resonance does; else the resonances' (the refinement's). The band reaches
+    up to ``top_hz``, as far as the lines that scale the modes (the model is taken to hold there)."""
+    ml = mass_line_levels(residuals, fs, modes.freq_hz, modes.damping_ratio, modes.directions[:, axes],
+                          modes.direction_se_rad, lines_hz=lines, band_hz=(modes.band_hz[0], top_hz)) \
+        if quantity == "acceleration" else None
+    resonances = (modes.input_level, modes.input_level_log_se)
+    if ml is None or not ml.misfit <= MAX_MASS_LINE_MISFIT:
+        return resonances, False
+    # only where they measure the modes to scale better than the resonances do (a mode inside the
+    # band leaves few bins clear of every resonance: session 18, a 60 Hz mode beside the paper's
+    # cell left Z's level uncertain by 0.4-0.7 in log)
+    target = np.asarray(too_far) & np.isfinite(modes.input_level_log_se)
+    if not np.all(ml.input_level_log_se[target] < modes.input_level_log_se[target]):
+        return resonances, False
+    return (ml.input_level, ml.input_level_log_se), True
+
+
 def _background_warnings(background: BackgroundLevel, modes: OutputOnlyModes, stiffness: StiffnessScaling,
                          by_background, fs: float) -> list[str]:
     """What the user must know about modes scaled by the background's level."""
@@ -345,8 +374,9 @@ def _background_warnings(background: BackgroundLevel, modes: OutputOnlyModes, st
                     for r in background.reference)
     out = []
     for t in np.flatnonzero(by_background):
-        out.append(f"mode at {modes.freq_hz[t]:.2f} Hz scaled by the background force's level instead of the lines: "
-                   f"assumes the background force along it is as strong as along the modes the lines scale "
+        out.append(f"mode at {modes.freq_hz[t]:.2f} Hz scaled by the background force's level (from the "
+                   f"{background.source}) instead of the lines: assumes the background force along it is as strong "
+                   f"as along the modes the lines scale "
                    f"(as white-noise variances: {ref}); stiffness uncertainty "
                    f"{100 * stiffness.statistical_relative_sd[t]:.0f} % without the coefficients', of which "
                    f"{100 * background.anisotropy_log_sd / 2:.0f} % for that assumption, which the record cannot check")

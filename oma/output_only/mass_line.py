@@ -1,0 +1,273 @@
+"""A third scale for output-only modes: the mass lines of the background force's response.
+
+Away from its resonance a mode still answers the broadband background force, along its
+direction and in proportion to its flexibility: the acceleration per force is
+``u_r u_r^T g_r(w) / m_r`` with ``g_r = -w^2 / (w_r^2 - w^2 + 2 i zeta_r w_r w)`` (1 far above the
+mode: its mass line; ``-(w / w_r)^2`` far below: its stiffness line) and ``m_r = k_r / w_r^2``. With a
+background force of the same power spectral density ``s(w)`` along every direction, the
+response's spectral matrix outside the modes' resonances is
+
+    S(w) = s(w) A(w) A(w)^H,    A(w) = sum_r u_r u_r^T g_r(w) / m_r,
+
+known up to ``s(w)`` and the masses once the frequencies, damping and directions are. The modes
+the tooth-passing lines scale give their masses, the channels along them give ``s(w)`` at each
+frequency, and the channels along a mode the lines cannot scale (on the paper's cell the Z mode
+beside X) give its mass, frequency by frequency against the same ``s(w)``.
+
+Why this and not the mode's level at its resonance (:mod:`oma.output_only.background`): a mode's
+resonance holds a narrowband response of a few Hz, about ``T * 2 zeta f`` independent
+frequency bins (20 in a 20 s record at 10 Hz, 5 %), so its level is uncertain by about
+``1/sqrt(20)``, 20 % in power and 10 % in stiffness, whatever the method (measured in session 18:
+the level's stated log standard error 0.13-0.26 on the benchmark's records). The mass lines span
+the band outside the resonances, some thousand bins in the same record, and the same frequencies
+give the reference level: the background's colour cancels (the resonance level needs the
+background white between the modes' frequencies: session 16 measured 23-39 % off for a pink, red
+or blue one).
+
+What it assumes, and the model says so (the mode is not trusted): the background force is as
+strong along the mode's direction as along the scaled modes' at the same frequency (as the
+background level does); no mode in the band is missing from the model (a missing mode's line
+along the target inflates its flexibility); the accelerometers' own noise is far below the mass
+lines (a flat noise floor cannot be told from a mass line, which is flat in acceleration too).
+
+Accelerations only. In displacement the mass lines fall as ``f^-4`` under a tracker's rounding
+floor, and a floor fitted beside them traded with the Z mass line: on session 18's displacement
+records (a white and a pink background) Z came out 20 % and 51 % soft with a stated error of 3 %;
+on accelerations under white, pink, red and blue backgrounds it was within 4 %.
+
+The fit is a Whittle maximum a posteriori over blocks of adjacent bins: ``log s`` piecewise linear
+in log frequency (:data:`SUB_BANDS` pieces), ``log m_r`` of every mode but the first (the data fix
+``s / m_r^2`` only: the levels), each mode's direction turned by small angles with its stated
+angular error as the prior (directions matter: the close pair's are tilted by 5-20 degrees in
+20 s records, and the mass lines pin them). It returns each mode's level in the convention of
+the refinement's, and :mod:`oma.output_only.background` scales with them as with the resonances'
+(the lines' stiffnesses of the modes they scale, the spread allowed between directions).
+Standard errors: the larger of the inverse Hessian's and the sandwich's (blocks' scores; White
+1982), as the refinement does (:func:`oma.output_only._ml_inference._information_se`).
+
+Measured (session 18, ``benchmarks/bench_oma_output_only.py``, 20 records per case): the Z
+stiffness beside X 1.2-1.9 % median, 4.7-7.1 % max over the tooth, runout, on-mode and extra
+cases (from the resonances: 6.5-7.5 %, 11.5-15.3 %).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, special
+
+__all__ = ["MassLineLevels", "mass_line_levels", "CLEARANCE", "STIFFNESS_CLEARANCE", "SUB_BANDS", "BLOCK_BINS",
+           "MIN_BLOCKS"]
+
+#: Bins are used on a mode's mass-line side from ``f / f_r >= CLEARANCE`` (there ``|g_r|`` is within
+#: 80 % of its asymptote 1 and a 0.5 % frequency error moves ``|g_r|^2`` by 1.6 %) ...
+CLEARANCE = 1.5
+#: ... and on its stiffness side up to ``f / f_r <= 1 / STIFFNESS_CLEARANCE``: there the mode's
+#: response is at most a third of its mass line, but grows as ``(f / f_r)^2``, so its frequency and
+#: mass weigh on every channel it points along (session 18, the ``extra`` case's 70 Hz mode at
+#: 0.53-0.67 of its frequency left the fit 15-32 % off in Z with a clearance of 1.5 on both sides).
+STIFFNESS_CLEARANCE = 2.0
+#: Intervals of the background's log level, piecewise linear in log frequency (knots at the
+#: blocks' quantiles).
+SUB_BANDS = 4
+#: Adjacent bins averaged into one block (a Wishart of this many degrees of freedom).
+BLOCK_BINS = 8
+#: Fewer blocks than this: no mass-line scale.
+MIN_BLOCKS = 20
+
+
+@dataclass(frozen=True)
+class MassLineLevels:
+    """Each mode's input level from the mass lines (module docstring), in the convention of
+    :attr:`oma.output_only.modes.OutputOnlyModes.input_level` (``E|u_r . F|^2 / k_r^2`` per Hz,
+    two-sided, with ``F``'s level the geometric mean over the blocks), so that
+    :func:`oma.output_only.background.background_level` and
+    :func:`~oma.output_only.background.scale_by_background` use them as they use the resonances'.
+
+    Attributes
+    ----------
+    input_level, input_level_log_se : ndarray, shape (n_modes,)
+        The levels and the standard errors of their logarithms (the records' noise and the
+        directions' errors).
+    band_hz : (float, float)
+        Lowest and highest bin used.
+    n_bins : int
+        Bins used.
+    misfit : float
+        The blocks' deviance over its expectation (:func:`_deviance_ratio`; about 1 where the
+        model explains them).
+    """
+
+    input_level: np.ndarray
+    input_level_log_se: np.ndarray
+    band_hz: tuple
+    n_bins: int
+    misfit: float
+
+
+def _bins(ffts, band_hz, freq_hz, lines_hz, guard_hz):
+    """The frequencies (K,) and DFT vectors (K, l) of the bins outside every mode's clearances
+    (:data:`CLEARANCE`, :data:`STIFFNESS_CLEARANCE`) and every line's guard, inside ``band_hz``,
+    on the mass-line side of some mode (below every mode the response is quasi-static, no mass
+    line, and where a record's low end is filtered or drifts: session 18's displacement records
+    had a tenth of the model's power at 4-5 Hz)."""
+    ws, xs = [], []
+    lines = np.asarray(lines_hz, dtype=float)
+    for freq, x in ffts:
+        sel = (freq >= band_hz[0]) & (freq <= band_hz[1])
+        ratio = freq[:, None] / np.asarray(freq_hz)[None, :]
+        sel &= ~np.any((ratio > 1.0 / STIFFNESS_CLEARANCE) & (ratio < CLEARANCE), axis=1)
+        sel &= np.any(ratio >= CLEARANCE, axis=1)
+        if lines.size:
+            sel &= np.min(np.abs(freq[:, None] - lines[None, :]), axis=1) > guard_hz
+        ws.append(freq[sel])
+        xs.append(x[:, sel].T)
+    return np.concatenate(ws), np.concatenate(xs)
+
+
+def _blocks(f, x, n):
+    """Adjacent bins (in frequency order) averaged ``n`` at a time: centre frequencies and sample
+    spectral matrices (B, l, l); a remainder shorter than ``n`` is dropped."""
+    order = np.argsort(f, kind="stable")
+    f, x = f[order], x[order]
+    nb = f.size // n
+    f = f[:nb * n].reshape(nb, n)
+    x = x[:nb * n].reshape(nb, n, -1)
+    return f.mean(axis=1), np.einsum("bki,bkj->bij", x, x.conj()) / n
+
+
+def _deviance_ratio(s, s_hat, n):
+    """The blocks' Wishart deviance ``n (tr(S^-1 S_hat) - log det(S^-1 S_hat) - l)`` over its
+    expectation under the model (``S_hat`` a complex Wishart of ``n`` degrees of freedom:
+    ``E log det(S^-1 S_hat) = sum_i psi(n - i) - l log n``): about 1 where the model explains the
+    blocks, above where a line, a mode or a floor it lacks shows."""
+    l = s.shape[-1]
+    m = np.linalg.solve(s, s_hat)
+    tr = np.real(np.trace(m, axis1=1, axis2=2))
+    logdet = np.real(np.linalg.slogdet(m)[1])
+    expected = n * (l * np.log(n) - np.sum(special.digamma(n - np.arange(l))))
+    return float(np.mean(n * (tr - logdet - l)) / expected)
+
+
+def _tangent(u):
+    """Two orthonormal vectors perpendicular to the unit ``u`` (l,), as columns (l, l - 1)."""
+    q = np.linalg.qr(np.column_stack([u, np.eye(u.size)]))[0]
+    return q[:, 1:u.size]
+
+
+def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
+                     lines_hz=(), band_hz=(4.0, 100.0),
+                     line_guard_hz: float = 0.1) -> MassLineLevels | None:
+    """Every mode's input level from the mass lines of the background's response (module docstring).
+
+    Parameters
+    ----------
+    residuals : sequence of ndarray, shape (l, n_samples)
+        Accelerations of one pose with the milling lines removed.
+    freq_hz, damping : array_like, shape (n,)
+        The modes (refined).
+    directions : array_like, shape (n, l)
+        Unit directions in the channels.
+    direction_se_rad : array_like, shape (n,)
+        Their angular standard errors (the prior of the turn; NaN or 0: held).
+    lines_hz : array_like
+        Milling lines removed from the residuals; bins within ``line_guard_hz`` are left out.
+    band_hz : (float, float)
+        The band used (up to 0.45 ``fs``): every mode in it must be in the model (one missing shows
+        in ``misfit``).
+
+    Returns
+    -------
+    MassLineLevels or None
+        None without modes, with fewer than :data:`MIN_BLOCKS` blocks, or when the fit fails.
+    """
+    fs = float(sample_rate_hz)
+    f_r = np.asarray(freq_hz, dtype=float)
+    z_r = np.asarray(damping, dtype=float)
+    u0 = np.asarray(directions, dtype=float)
+    u0 = u0 / np.linalg.norm(u0, axis=1, keepdims=True)
+    n, l = u0.shape
+    if n == 0:
+        return None
+    ffts = [(np.fft.rfftfreq(r.shape[1], 1.0 / fs), np.fft.rfft(r, axis=1) / np.sqrt(fs * r.shape[1]))
+            for r in residuals]
+    f, x = _bins(ffts, (band_hz[0], min(band_hz[1], 0.45 * fs)), f_r, lines_hz, line_guard_hz)
+    if f.size < MIN_BLOCKS * BLOCK_BINS:
+        return None
+    fb, s_hat = _blocks(f, x, BLOCK_BINS)
+    w = 2 * np.pi * fb
+    wr = 2 * np.pi * f_r
+    g = -w[:, None] ** 2 / (wr[None] ** 2 - w[:, None] ** 2 + 2j * z_r[None] * wr[None] * w[:, None])
+    # log s: piecewise linear in log frequency between knots at the blocks' quantiles (a power-law
+    # colour exactly; the knots where the blocks are)
+    knots = np.unique(np.quantile(np.log(fb), np.linspace(0.0, 1.0, SUB_BANDS + 1)))
+    hat = np.column_stack([np.interp(np.log(fb), knots, np.eye(knots.size)[j]) for j in range(knots.size)])
+    n_s = knots.size
+    se_dir = np.asarray(direction_se_rad, dtype=float)
+    turn = (np.isfinite(se_dir) & (se_dir > 0)) if l > 1 else np.zeros(n, bool)
+    tang = [_tangent(u0[r]) for r in range(n)]
+    n_t = int(turn.sum()) * (l - 1)
+    # parameters: log s at the knots, log(1/m) of modes 1.. (mode 0's is 0: the scale of s and
+    # the masses is one degree of freedom the data do not fix), the turns
+    p0_ = np.zeros(n_s + n - 1 + n_t)
+    a_mat = np.einsum("ri,rj,br->bij", u0, u0, g)
+    p_mod = np.real(np.einsum("bij,bij->b", a_mat, a_mat.conj()))
+    p_obs = np.real(np.trace(s_hat, axis1=1, axis2=2))
+    p0_[:n_s] = np.linalg.lstsq(hat, np.log(p_obs / p_mod), rcond=None)[0]
+    prior_prec = np.zeros(p0_.size)
+    prior_prec[n_s + n - 1:n_s + n - 1 + n_t] = np.repeat(1.0 / se_dir[turn] ** 2, l - 1)
+
+    def spectrum(p):
+        la = np.concatenate([[0.0], p[n_s:n_s + n - 1]])
+        d = p[n_s + n - 1:n_s + n - 1 + n_t].reshape(-1, l - 1)
+        u = u0.copy()
+        for j, r in enumerate(np.flatnonzero(turn)):
+            v = u0[r] + tang[r] @ d[j]
+            u[r] = v / np.linalg.norm(v)
+        a = np.einsum("ri,rj,br->bij", u, u, g * np.exp(la)[None])
+        return np.exp(hat @ p[:n_s])[:, None, None] * (a @ a.conj().transpose(0, 2, 1))
+
+    def per_block(p):
+        s = spectrum(p)
+        sign, logdet = np.linalg.slogdet(s)
+        if not (np.all(np.isfinite(p)) and np.all(np.real(sign) > 0) and np.all(np.isfinite(logdet))):
+            return None
+        return BLOCK_BINS * (logdet.real + np.real(np.trace(np.linalg.solve(s, s_hat), axis1=1, axis2=2)))
+
+    def objective(p):
+        v = per_block(p)
+        return 1e300 if v is None else float(v.sum() + 0.5 * np.sum(prior_prec * p ** 2))
+
+    p = optimize.minimize(objective, p0_, method="BFGS", options={"gtol": 1e-6, "maxiter": 500}).x
+    if per_block(p) is None:
+        return None
+    # the levels log(s / m_r^2) (log s averaged over the blocks) are what the data fix: linear
+    # combinations of the parameters; their errors from the curvature and the blocks' scores
+    n_p = p.size
+    comb = np.zeros((n, n_p))
+    comb[:, :n_s] = hat.mean(axis=0)
+    comb[1:, n_s:n_s + n - 1] = 2.0 * np.eye(n - 1)
+    h = 1e-4
+    eye = np.eye(n_p) * h
+    grads = np.empty((n_p, fb.size))
+    for i in range(n_p):
+        up, dn = per_block(p + eye[i]), per_block(p - eye[i])
+        if up is None or dn is None:
+            return None
+        grads[i] = (up - dn) / (2 * h)
+    hess = np.empty((n_p, n_p))
+    for i in range(n_p):
+        for j in range(i, n_p):
+            hess[i, j] = hess[j, i] = (objective(p + eye[i] + eye[j]) - objective(p + eye[i] - eye[j])
+                                       - objective(p - eye[i] + eye[j]) + objective(p - eye[i] - eye[j])) / (4 * h * h)
+    if not np.all(np.isfinite(hess)):
+        return None
+    cov = np.linalg.pinv(hess, rcond=1e-12, hermitian=True)
+    sandwich = cov @ (grads @ grads.T + np.diag(prior_prec)) @ cov
+    var = np.fmax(np.einsum("ri,ij,rj->r", comb, cov, comb), np.einsum("ri,ij,rj->r", comb, sandwich, comb))
+    # s / m_r^2 = s / (k_r / w_r^2)^2: the input level E|u . F|^2 / k_r^2 is that over w_r^4
+    log_level = comb @ p - 4.0 * np.log(wr)
+    misfit = _deviance_ratio(spectrum(p), s_hat, BLOCK_BINS)
+    return MassLineLevels(input_level=np.exp(log_level), input_level_log_se=np.sqrt(np.maximum(var, 0.0)),
+                          band_hz=(float(f.min()), float(f.max())), n_bins=int(f.size), misfit=misfit)
