@@ -312,13 +312,14 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                 if background is not None and np.any(stiffness.too_far):
                     stiffness, by_background = scale_by_background(stiffness, background, *levels, level=level)
                 if np.any(by_background):
-                    warnings += _background_warnings(background, modes, stiffness, by_background, fs)
+                    warnings += _background_warnings(background, modes, stiffness, by_background, fs,
+                                                     background_anisotropy)
                 else:
                     levels_disagree = background is not None and not (
                         background.consistent if mass_lines else
                         consistent_up_to_colour(background, modes.freq_hz, anisotropy_log_sd=background_anisotropy))
                     if levels_disagree:
-                        warnings.append(_disagreement_warning(background, modes, fs))
+                        warnings.append(_disagreement_warning(background, modes, fs, background_anisotropy))
                     background = None
             if stiffness.misfit > MAX_LINE_MISFIT:
                 warnings.append(f"the response lines disagree with the force model by more than their noise "
@@ -385,18 +386,20 @@ def _reference_levels(background: BackgroundLevel, modes: OutputOnlyModes, fs: f
                      for r in background.reference)
 
 
-def _disagreement_warning(background: BackgroundLevel, modes: OutputOnlyModes, fs: float) -> str:
-    """Where every mode is scaled by the lines and their background levels disagree."""
+def _disagreement_warning(background: BackgroundLevel, modes: OutputOnlyModes, fs: float, allowed: float) -> str:
+    """Where every mode is scaled by the lines and their background levels disagree (``allowed``: the
+    spread of log PSD the test allows)."""
     return (f"the background force's level (from the {background.source}) along the modes the lines scale differs "
-            f"between them by more than their errors and a {100 * background.anisotropy_log_sd:.0f} % spread explain "
+            f"between them by more than their errors and a {100 * allowed:.0f} % spread explain "
             f"(as white-noise variances: {_reference_levels(background, modes, fs)}): a stiffness from the lines is "
             "wrong, or the background force is far stronger along some directions than others; the model is not "
             "trusted")
 
 
 def _background_warnings(background: BackgroundLevel, modes: OutputOnlyModes, stiffness: StiffnessScaling,
-                         by_background, fs: float) -> list[str]:
-    """What the user must know about modes scaled by the background's level."""
+                         by_background, fs: float, allowed: float) -> list[str]:
+    """What the user must know about modes scaled by the background's level (``allowed``: the
+    least spread of log PSD between directions, the consistency test's)."""
     ref = _reference_levels(background, modes, fs)
     out = []
     for t in np.flatnonzero(by_background):
@@ -408,7 +411,7 @@ def _background_warnings(background: BackgroundLevel, modes: OutputOnlyModes, st
                    f"{100 * background.anisotropy_log_sd / 2:.0f} % for that assumption, which the record cannot check")
     if not background.consistent:
         out.append("the background force's level differs between the modes the lines scale by more than their "
-                   f"errors and a {100 * background.anisotropy_log_sd:.0f} % spread explain: the modes scaled by it are "
+                   f"errors and a {100 * allowed:.0f} % spread explain: the modes scaled by it are "
                    "doubtful")
     return out
 

@@ -156,6 +156,37 @@ def _tangent(u):
     return q[:, 1:u.size]
 
 
+def _curvature(per_block, p, prior_prec, h: float = 1e-4):
+    """The inverse Hessian of the negative log posterior at ``p`` and the sandwich ``H^-1 (sum_b g_b
+    g_b^T + P) H^-1`` of the blocks' scores ``g_b`` (``P`` the priors' precision), by central
+    differences of ``per_block`` (the blocks' negative log-likelihoods, None where the model
+    spectrum is not positive definite); None where a step leaves it."""
+    n_p = p.size
+    eye = np.eye(n_p) * h
+
+    def total(q):
+        v = per_block(q)
+        return None if v is None else float(v.sum() + 0.5 * np.sum(prior_prec * q ** 2))
+
+    grads = np.empty((n_p, per_block(p).size))
+    for i in range(n_p):
+        up, dn = per_block(p + eye[i]), per_block(p - eye[i])
+        if up is None or dn is None:
+            return None
+        grads[i] = (up - dn) / (2 * h)
+    hess = np.empty((n_p, n_p))
+    for i in range(n_p):
+        for j in range(i, n_p):
+            corners = [total(p + si * eye[i] + sj * eye[j]) for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
+            if any(c is None for c in corners):
+                return None
+            hess[i, j] = hess[j, i] = (corners[0] - corners[1] - corners[2] + corners[3]) / (4 * h * h)
+    if not np.all(np.isfinite(hess)):
+        return None
+    cov = np.linalg.pinv(hess, rcond=1e-12, hermitian=True)
+    return cov, cov @ (grads @ grads.T + np.diag(prior_prec)) @ cov
+
+
 def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
                      lines_hz=(), band_hz=(4.0, 100.0),
                      line_guard_hz: float = 0.1) -> MassLineLevels | None:
@@ -244,27 +275,13 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
         return None
     # the levels log(s / m_r^2) (log s averaged over the blocks) are what the data fix: linear
     # combinations of the parameters; their errors from the curvature and the blocks' scores
-    n_p = p.size
-    comb = np.zeros((n, n_p))
+    comb = np.zeros((n, p.size))
     comb[:, :n_s] = hat.mean(axis=0)
     comb[1:, n_s:n_s + n - 1] = 2.0 * np.eye(n - 1)
-    h = 1e-4
-    eye = np.eye(n_p) * h
-    grads = np.empty((n_p, fb.size))
-    for i in range(n_p):
-        up, dn = per_block(p + eye[i]), per_block(p - eye[i])
-        if up is None or dn is None:
-            return None
-        grads[i] = (up - dn) / (2 * h)
-    hess = np.empty((n_p, n_p))
-    for i in range(n_p):
-        for j in range(i, n_p):
-            hess[i, j] = hess[j, i] = (objective(p + eye[i] + eye[j]) - objective(p + eye[i] - eye[j])
-                                       - objective(p - eye[i] + eye[j]) + objective(p - eye[i] - eye[j])) / (4 * h * h)
-    if not np.all(np.isfinite(hess)):
+    curvature = _curvature(per_block, p, prior_prec)
+    if curvature is None:
         return None
-    cov = np.linalg.pinv(hess, rcond=1e-12, hermitian=True)
-    sandwich = cov @ (grads @ grads.T + np.diag(prior_prec)) @ cov
+    cov, sandwich = curvature
     var = np.fmax(np.einsum("ri,ij,rj->r", comb, cov, comb), np.einsum("ri,ij,rj->r", comb, sandwich, comb))
     # s / m_r^2 = s / (k_r / w_r^2)^2: the input level E|u . F|^2 / k_r^2 is that over w_r^4
     log_level = comb @ p - 4.0 * np.log(wr)
