@@ -360,14 +360,14 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
 
 def _background_levels(residuals, fs, modes: OutputOnlyModes, axes, quantity, lines, too_far, top_hz):
     """The modes' input levels for the background's scale, and whether they come from the mass
-    lines (:mod:`oma.output_only.mass_line`; accelerations only): those where the band outside the
+    lines (:mod:`oma.output_only.mass_line`; not for displacements): those where the band outside the
     modes' resonances holds enough bins, the fit explains them (deviance ratio at most
     :data:`MAX_MASS_LINE_MISFIT`) and they measure every mode to be scaled (``too_far``) more
     precisely than its resonance does; else the resonances' (the refinement's). The band reaches
     up to ``top_hz``, as far as the lines that scale the modes (the model is taken to hold there)."""
     ml = mass_line_levels(residuals, fs, modes.freq_hz, modes.damping_ratio, modes.directions[:, axes],
-                          modes.direction_se_rad, lines_hz=lines, band_hz=(modes.band_hz[0], top_hz)) \
-        if quantity == "acceleration" else None
+                          modes.direction_se_rad, derivative=MOTION_QUANTITIES.index(quantity), lines_hz=lines,
+                          band_hz=(modes.band_hz[0], top_hz)) if quantity != "displacement" else None
     resonances = (modes.input_level, modes.input_level_log_se)
     if ml is None or not ml.misfit <= MAX_MASS_LINE_MISFIT:
         return resonances, False

@@ -30,10 +30,13 @@ background level does); no mode in the band is missing from the model (a missing
 along the target inflates its flexibility); the accelerometers' own noise is far below the mass
 lines (a flat noise floor cannot be told from a mass line, which is flat in acceleration too).
 
-Accelerations only. In displacement the mass lines fall as ``f^-4`` under a tracker's rounding
-floor, and a floor fitted beside them traded with the Z mass line: on session 18's displacement
-records (a white and a pink background) Z came out 20 % and 51 % soft with a stated error of 3 %;
-on accelerations under white, pink, red and blue backgrounds it was within 4 %.
+Accelerations, and velocities differentiated (on the audit generator's velocity records with
+0-10 % sensor noise, Z with the true X and Y stiffnesses within 5.7 %). Not displacements: their
+mass lines fall as ``f^-4``, under a tracker's rounding floor and the resonances' own leakage. A
+floor fitted beside them traded with the Z mass line (Z 20 % and 51 % soft with a stated error
+of 3 %); without a floor, clean displacements of the audit generator gave Z 20-37 % soft with the
+fit's deviance ratio still about 1. On accelerations under white, pink, red and blue backgrounds
+Z was within 4 %.
 
 The fit is a Whittle maximum a posteriori over blocks of adjacent bins: ``log s`` piecewise linear
 in log frequency (:data:`SUB_BANDS` pieces), ``log m_r`` of every mode but the first (the data fix
@@ -188,20 +191,22 @@ def _curvature(per_block, p, prior_prec, h: float = 1e-4):
 
 
 def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
-                     lines_hz=(), band_hz=(4.0, 100.0),
+                     derivative: int = 2, lines_hz=(), band_hz=(4.0, 100.0),
                      line_guard_hz: float = 0.1) -> MassLineLevels | None:
     """Every mode's input level from the mass lines of the background's response (module docstring).
 
     Parameters
     ----------
     residuals : sequence of ndarray, shape (l, n_samples)
-        Accelerations of one pose with the milling lines removed.
+        Accelerations or velocities of one pose with the milling lines removed.
     freq_hz, damping : array_like, shape (n,)
         The modes (refined).
     directions : array_like, shape (n, l)
         Unit directions in the channels.
     direction_se_rad : array_like, shape (n,)
         Their angular standard errors (the prior of the turn; NaN or 0: held).
+    derivative : {1, 2}
+        Velocities (differentiated here) or accelerations.
     lines_hz : array_like
         Milling lines removed from the residuals; bins within ``line_guard_hz`` are left out.
     band_hz : (float, float)
@@ -213,6 +218,8 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
     MassLineLevels or None
         None without modes, with fewer than :data:`MIN_BLOCKS` blocks, or when the fit fails.
     """
+    if derivative not in (1, 2):
+        raise ValueError(f"the mass lines need velocities or accelerations (derivative 1 or 2), not {derivative!r}")
     fs = float(sample_rate_hz)
     f_r = np.asarray(freq_hz, dtype=float)
     z_r = np.asarray(damping, dtype=float)
@@ -221,8 +228,10 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
     n, l = u0.shape
     if n == 0:
         return None
-    ffts = [(np.fft.rfftfreq(r.shape[1], 1.0 / fs), np.fft.rfft(r, axis=1) / np.sqrt(fs * r.shape[1]))
-            for r in residuals]
+    ffts = []
+    for r in residuals:
+        freq = np.fft.rfftfreq(r.shape[1], 1.0 / fs)
+        ffts.append((freq, np.fft.rfft(r, axis=1) * (2j * np.pi * freq) ** (2 - derivative) / np.sqrt(fs * r.shape[1])))
     f, x = _bins(ffts, (band_hz[0], min(band_hz[1], 0.45 * fs)), f_r, lines_hz, line_guard_hz)
     if f.size < MIN_BLOCKS * BLOCK_BINS:
         return None
