@@ -10,9 +10,8 @@ import pytest
 from oma.modal import ModalModel
 from oma.output_only.identify import MAX_MASS_LINE_MISFIT, identify_output_only
 from oma.output_only.mass_line import mass_line_levels
-from oma.record import Channel, Record
-from oma.synthetic import (PAPER_BACKGROUND_VARIANCE_N2, _motion_derivative, band_limited_milling_force,
-                           paper_like_cut, paper_like_material, paper_like_model, paper_like_tool, synthetic_record)
+from oma.synthetic import PAPER_BACKGROUND_VARIANCE_N2, paper_like_model, synthetic_record
+from test_output_only_background_colour import coloured_record  # the coloured background's records
 
 TRUTH = paper_like_model()
 FS = 1000.0
@@ -68,30 +67,12 @@ def test_z_beside_x_is_scaled_from_the_mass_lines(paper_cell):
     assert any("from the mass lines" in w for w in res.warnings) and not res.trusted
 
 
-def _coloured_acceleration(seed: int, exponent: float) -> Record:
-    """20 s of acceleration of the paper-like cell at 2700 rpm under a background force whose PSD
-    goes as ``f^-exponent`` (each axis at the paper's variance), milling lines included."""
-    rng = np.random.default_rng(seed)
-    tool, material, cut = paper_like_tool(), paper_like_material(), paper_like_cut(2700.0)
-    n_pre, n = 3000, 20000
-    t = (np.arange(n_pre + n) - n_pre) / FS
-    force = band_limited_milling_force(tool, cut, material.cutting_coefficients, t, 0.5 * FS, runout_m=None)
-    freq = np.fft.rfftfreq(t.size, 1.0 / FS)
-    shape = (15.0 / np.maximum(freq, 0.5)) ** (exponent / 2)
-    noise = np.fft.irfft(np.fft.rfft(rng.standard_normal((3, t.size)), axis=1) * shape, n=t.size, axis=1)
-    force += np.sqrt(np.asarray(PAPER_BACKGROUND_VARIANCE_N2))[:, None] * noise
-    motion = _motion_derivative(TRUTH, force, FS, order=2)[:, n_pre:]
-    channels = tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in ("X", "Y", "Z"))
-    return Record(sample_rate_hz=FS, channels=channels, data=motion, tool=tool, cut=cut, material=material,
-                  name=f"coloured-{exponent}-{seed}")
-
-
 @pytest.mark.parametrize("exponent", [2.0, -1.0])
 def test_the_backgrounds_colour_cancels(exponent):
     """Red (f^-2) and blue (f^+1) backgrounds: the mass lines of X, Y and Z share each frequency's
     level, so Z comes out within 6 % (seeds 0-2: -4.1 to +1.7 % over pink, red and blue), where the
     resonances' levels, carried as if white, gave 23-39 % off in the median (session 16)."""
-    res = identify_output_only([_coloured_acceleration(0, exponent)])
+    res = identify_output_only([coloured_record(0, exponent, "acceleration")])
     jz = _match(res.model, 2)
     assert res.scaled_by[jz] == "background" and res.background.source == "mass lines"
     assert abs(res.model.stiffness_N_m[jz] / TRUTH.stiffness_N_m[2] - 1) < 0.06
