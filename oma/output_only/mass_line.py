@@ -18,11 +18,11 @@ Why this and not the mode's level at its resonance (:mod:`oma.output_only.backgr
 resonance holds a narrowband response of a few Hz, about ``T * 2 zeta f`` independent
 frequency bins (20 in a 20 s record at 10 Hz, 5 %), so its level is uncertain by about
 ``1/sqrt(20)``, 20 % in power and 10 % in stiffness, whatever the method (measured in session 18:
-the level's stated log standard error 0.13-0.26 on the benchmark's records). The mass lines span
-the band outside the resonances, some thousand bins in the same record, and the same frequencies
-give the reference level: the background's colour cancels (the resonance level needs the
-background white between the modes' frequencies: session 16 measured 23-39 % off for a pink, red
-or blue one).
+the level's stated log standard error 0.12-0.35 on 20 of the benchmark's records). The mass
+lines span the band outside the resonances, some thousand bins in the same record, and the same
+frequencies give the reference level: the background's colour cancels (the resonance level needs
+the background white between the modes' frequencies: session 16 measured 23-39 % off for a
+pink, red or blue one).
 
 What it assumes, and the model says so (the mode is not trusted): the background force is as
 strong along the mode's direction as along the scaled modes' at the same frequency (as the
@@ -43,9 +43,10 @@ in log frequency (:data:`SUB_BANDS` pieces), ``log m_r`` of every mode but the f
 ``s / m_r^2`` only: the levels), each mode's direction turned by small angles with its stated
 angular error as the prior (the close pair's are tilted by 5-20 degrees in 20 s records; held
 there, a first version's Z was up to 35 % off in 12 records, against 6 % with the true
-directions; the turned directions themselves come out no nearer the truth, measured on 6). It returns each mode's level in the convention of
-the refinement's, and :mod:`oma.output_only.background` scales with them as with the resonances'
-(the lines' stiffnesses of the modes they scale, the spread allowed between directions).
+directions; the turned directions themselves come out no nearer the truth, measured on 6). It
+returns each mode's level in the convention of the refinement's, and
+:mod:`oma.output_only.background` scales with them as with the resonances' (the lines'
+stiffnesses of the modes they scale, the spread allowed between directions).
 Standard errors: the larger of the inverse Hessian's and the sandwich's (blocks' scores; White
 1982), as the refinement does (:func:`oma.output_only._ml_inference._information_se`).
 
