@@ -62,6 +62,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, special
 
+from .ml import _band_bins, _spectra
+
 __all__ = ["MassLineLevels", "mass_line_levels", "CLEARANCE", "STIFFNESS_CLEARANCE", "SUB_BANDS", "BLOCK_BINS",
            "MIN_BLOCKS"]
 
@@ -111,29 +113,19 @@ class MassLineLevels:
     misfit: float
 
 
-def _bins(ffts, band_hz, freq_hz, lines_hz, guard_hz):
-    """The frequencies (K,) and DFT vectors (K, l) of the bins outside every mode's clearances
-    (:data:`CLEARANCE`, :data:`STIFFNESS_CLEARANCE`) and every line's guard, inside ``band_hz``,
-    on the mass-line side of some mode (below every mode the response is quasi-static, no mass
+def _clear_of_modes(freq, freq_hz):
+    """The bins outside every mode's clearances (:data:`CLEARANCE`, :data:`STIFFNESS_CLEARANCE`)
+    and on the mass-line side of some mode (below every mode the response is quasi-static, no mass
     line, and where a record's low end is filtered or drifts: session 18's displacement records
     had a tenth of the model's power at 4-5 Hz)."""
-    ws, xs = [], []
-    lines = np.asarray(lines_hz, dtype=float)
-    for freq, x in ffts:
-        sel = (freq >= band_hz[0]) & (freq <= band_hz[1])
-        ratio = freq[:, None] / np.asarray(freq_hz)[None, :]
-        sel &= ~np.any((ratio > 1.0 / STIFFNESS_CLEARANCE) & (ratio < CLEARANCE), axis=1)
-        sel &= np.any(ratio >= CLEARANCE, axis=1)
-        if lines.size:
-            sel &= np.min(np.abs(freq[:, None] - lines[None, :]), axis=1) > guard_hz
-        ws.append(freq[sel])
-        xs.append(x[:, sel].T)
-    return np.concatenate(ws), np.concatenate(xs)
+    ratio = freq[:, None] / np.asarray(freq_hz)[None, :]
+    beside = np.any((ratio > 1.0 / STIFFNESS_CLEARANCE) & (ratio < CLEARANCE), axis=1)
+    return ~beside & np.any(ratio >= CLEARANCE, axis=1)
 
 
 def _blocks(f, x, n):
-    """Adjacent bins (in frequency order) averaged ``n`` at a time: centre frequencies and sample
-    spectral matrices (B, l, l); a remainder shorter than ``n`` is dropped."""
+    """Adjacent bins (in frequency order) averaged ``n`` at a time: centre frequencies (the unit of
+    ``f``) and sample spectral matrices (B, l, l); a remainder shorter than ``n`` is dropped."""
     order = np.argsort(f, kind="stable")
     f, x = f[order], x[order]
     nb = f.size // n
@@ -161,18 +153,14 @@ def _tangent(u):
     return q[:, 1:u.size]
 
 
-def _curvature(per_block, p, prior_prec, h: float = 1e-4):
+def _curvature(per_block, posterior, p, prior_prec, h: float = 1e-4):
     """The inverse Hessian of the negative log posterior at ``p`` and the sandwich ``H^-1 (sum_b g_b
     g_b^T + P) H^-1`` of the blocks' scores ``g_b`` (``P`` the priors' precision), by central
-    differences of ``per_block`` (the blocks' negative log-likelihoods, None where the model
-    spectrum is not positive definite); None where a step leaves it."""
+    differences of ``per_block`` (the blocks' negative log-likelihoods) and ``posterior`` (their sum
+    with the priors'), both None where the model spectrum is not positive definite; None where a
+    step leaves it."""
     n_p = p.size
     eye = np.eye(n_p) * h
-
-    def total(q):
-        v = per_block(q)
-        return None if v is None else float(v.sum() + 0.5 * np.sum(prior_prec * q ** 2))
-
     grads = np.empty((n_p, per_block(p).size))
     for i in range(n_p):
         up, dn = per_block(p + eye[i]), per_block(p - eye[i])
@@ -182,7 +170,7 @@ def _curvature(per_block, p, prior_prec, h: float = 1e-4):
     hess = np.empty((n_p, n_p))
     for i in range(n_p):
         for j in range(i, n_p):
-            corners = [total(p + si * eye[i] + sj * eye[j]) for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
+            corners = [posterior(p + si * eye[i] + sj * eye[j]) for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
             if any(c is None for c in corners):
                 return None
             hess[i, j] = hess[j, i] = (corners[0] - corners[1] - corners[2] + corners[3]) / (4 * h * h)
@@ -230,15 +218,15 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
     n, l = u0.shape
     if n == 0:
         return None
-    ffts = []
-    for r in residuals:
-        freq = np.fft.rfftfreq(r.shape[1], 1.0 / fs)
-        ffts.append((freq, np.fft.rfft(r, axis=1) * (2j * np.pi * freq) ** (2 - derivative) / np.sqrt(fs * r.shape[1])))
-    f, x = _bins(ffts, (band_hz[0], min(band_hz[1], 0.45 * fs)), f_r, lines_hz, line_guard_hz)
-    if f.size < MIN_BLOCKS * BLOCK_BINS:
+    # accelerations (velocities differentiated), the bins clear of the modes and the lines
+    ffts = [(freq[clear], x[:, clear] * (2j * np.pi * freq[clear]) ** (2 - derivative))
+            for freq, x in _spectra(residuals, fs) for clear in [_clear_of_modes(freq, f_r)]]
+    w_bins, x = _band_bins(ffts, band_hz[0], min(band_hz[1], 0.45 * fs), np.asarray(lines_hz, dtype=float),
+                           line_guard_hz)
+    if w_bins.size < MIN_BLOCKS * BLOCK_BINS:
         return None
-    fb, s_hat = _blocks(f, x, BLOCK_BINS)
-    w = 2 * np.pi * fb
+    w, s_hat = _blocks(w_bins, x, BLOCK_BINS)
+    fb = w / (2 * np.pi)
     wr = 2 * np.pi * f_r
     g = -w[:, None] ** 2 / (wr[None] ** 2 - w[:, None] ** 2 + 2j * z_r[None] * wr[None] * w[:, None])
     # log s: piecewise linear in log frequency between knots at the blocks' quantiles (a power-law
@@ -277,9 +265,13 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
             return None
         return BLOCK_BINS * (logdet.real + np.real(np.trace(np.linalg.solve(s, s_hat), axis1=1, axis2=2)))
 
-    def objective(p):
+    def posterior(p):
         v = per_block(p)
-        return 1e300 if v is None else float(v.sum() + 0.5 * np.sum(prior_prec * p ** 2))
+        return None if v is None else float(v.sum() + 0.5 * np.sum(prior_prec * p ** 2))
+
+    def objective(p):
+        v = posterior(p)
+        return 1e300 if v is None else v
 
     p = optimize.minimize(objective, p0_, method="BFGS", options={"gtol": 1e-6, "maxiter": 500}).x
     if per_block(p) is None:
@@ -289,7 +281,7 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
     comb = np.zeros((n, p.size))
     comb[:, :n_s] = hat.mean(axis=0)
     comb[1:, n_s:n_s + n - 1] = 2.0 * np.eye(n - 1)
-    curvature = _curvature(per_block, p, prior_prec)
+    curvature = _curvature(per_block, posterior, p, prior_prec)
     if curvature is None:
         return None
     cov, sandwich = curvature
@@ -298,4 +290,5 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
     log_level = comb @ p - 4.0 * np.log(wr)
     misfit = _deviance_ratio(spectrum(p), s_hat, BLOCK_BINS)
     return MassLineLevels(input_level=np.exp(log_level), input_level_log_se=np.sqrt(np.maximum(var, 0.0)),
-                          band_hz=(float(f.min()), float(f.max())), n_bins=int(f.size), misfit=misfit)
+                          band_hz=(float(w_bins.min() / (2 * np.pi)), float(w_bins.max() / (2 * np.pi))),
+                          n_bins=int(w_bins.size), misfit=misfit)

@@ -64,6 +64,16 @@ ADD_SIGMAS = 6.0
 JACKKNIFE_ITER = 12
 
 
+def _spectra(residuals, fs: float):
+    """Each record's bin frequencies (Hz) and DFT (l, K), scaled by ``1 / sqrt(fs n)`` so that
+    ``|x|^2`` is the two-sided power spectral density per Hz."""
+    out = []
+    for r in residuals:
+        r = np.asarray(r, dtype=float)
+        out.append((np.fft.rfftfreq(r.shape[1], 1.0 / fs), np.fft.rfft(r, axis=1) / np.sqrt(fs * r.shape[1])))
+    return out
+
+
 def _band_bins(ffts, a, b, lines, guard):
     """Angular frequencies (K,) and DFT vectors (K, l) of the bins in ``[a, b]`` Hz of all
     records, bins within ``guard`` of a milling line left out."""
@@ -231,21 +241,14 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             slopes.update(beta=beta, beta_se=beta_se)
         return RefinedModes(f_out, z_out, u_out, ok, reps, se, level)
 
-    def spectra(rs):
-        out = []
-        for r in rs:
-            r = np.asarray(r, dtype=float)
-            out.append((np.fft.rfftfreq(r.shape[1], 1.0 / fs), np.fft.rfft(r, axis=1) / np.sqrt(fs * r.shape[1])))
-        return out
-
-    ffts = spectra(residuals)
+    ffts = _spectra(residuals, fs)
     gapped = []
     for i, a, b in segments or ():
         rs = [np.asarray(r, dtype=float) for r in residuals]
         r = rs[i].copy()
         r[:, a:b] = 0.0
         rs[i] = r * np.sqrt(r.shape[1] / max(r.shape[1] - (b - a), 1))
-        gapped.append(spectra(rs))
+        gapped.append(_spectra(rs, fs))
     hw = np.maximum(half_width * z0 * f0, min_half_width_hz)
     lo, hi = f0 - hw, f0 + hw
     groups = band_groups(f0, z0, half_width=half_width, min_half_width_hz=min_half_width_hz)
