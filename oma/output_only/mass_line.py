@@ -62,7 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, special
 
-from .ml import _band_bins, _spectra
+from .ml import LINE_GUARD_HZ, _band_bins, _spectra
 
 __all__ = ["MassLineLevels", "mass_line_levels", "CLEARANCE", "STIFFNESS_CLEARANCE", "SUB_BANDS", "BLOCK_BINS",
            "MIN_BLOCKS"]
@@ -182,7 +182,7 @@ def _curvature(per_block, posterior, p, prior_prec, h: float = 1e-4):
 
 def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
                      derivative: int = 2, lines_hz=(), band_hz=(4.0, 100.0),
-                     line_guard_hz: float = 0.1) -> MassLineLevels | None:
+                     line_guard_hz: float = LINE_GUARD_HZ) -> MassLineLevels | None:
     """Every mode's input level from the mass lines of the background's response (module docstring).
 
     Parameters

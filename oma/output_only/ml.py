@@ -62,6 +62,10 @@ __all__ = ["refine_modes_ml", "RefinedModes"]
 ADD_SIGMAS = 6.0
 #: Fisher-scoring steps of a jackknife replicate's refit from the full-record optimum.
 JACKKNIFE_ITER = 12
+#: Bins within this of a milling line are left out (the regression notches them; what is left of
+#: a line has its own direction), Hz: the refinement's default, and the rank test's and the mass
+#: lines' (:mod:`oma.output_only.resolution`, :mod:`oma.output_only.mass_line`).
+LINE_GUARD_HZ = 0.1
 
 
 def _spectra(residuals, fs: float):
@@ -121,7 +125,7 @@ class RefinedModes(NamedTuple):
 
 def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directions, *, derivative: int = 2,
                     lines_hz=(), half_width: float = 6.0, min_half_width_hz: float = 1.0,
-                    line_guard_hz: float = 0.1, max_iter: int = 40, evidence: dict | None = None,
+                    line_guard_hz: float = LINE_GUARD_HZ, max_iter: int = 40, evidence: dict | None = None,
                     segments=None, residual_terms="auto", direction_scale=None,
                     add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf), input_slope: bool = True,
                     slopes: dict | None = None):

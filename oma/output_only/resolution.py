@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .ml import LINE_GUARD_HZ
 from .modes import _spectral_matrix
 
 __all__ = ["UnresolvedMode", "unresolved_modes", "band_shapes", "SHARE"]
@@ -56,9 +57,6 @@ BAND_ZETA = 2.0
 #: (Hann-correlated) bins has too few degrees of freedom for its second singular value to show a
 #: partner of similar power (a 5 s record, a 10 Hz / 2 % mode: two bins; its share came out 0.01).
 MIN_HALF_BINS = 4
-#: Bins within this of a milling line are left out (the regression notches them; what is left of
-#: a line has its own direction): the refinement's guard, Hz.
-LINE_GUARD_HZ = 0.1
 
 
 @dataclass(frozen=True)
@@ -144,7 +142,7 @@ def unresolved_modes(residuals, sample_rate_hz: float, band_hz, freq_hz, damping
         As :func:`oma.output_only.coverage.unexplained_peaks` (the noise floor is the channels'
         median power over ``band_hz``).
     lines_hz : array_like
-        Milling lines of every record (bins within :data:`LINE_GUARD_HZ`, or within
+        Milling lines of every record (bins within :data:`~oma.output_only.ml.LINE_GUARD_HZ`, or within
         ``line_relative_halfwidth`` times the line's frequency, a tracked speed's wander, left out).
     derivative : {0, 1, 2}
         Displacement, velocity or acceleration (the skirts' shape).
