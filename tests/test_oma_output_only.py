@@ -338,26 +338,32 @@ def test_real_hurco_accelerations_identified_but_not_trusted_without_coefficient
         assert not (np.min(np.abs(lines / f - 1)) < 0.005 and z < 0.01)
 
 
-@pytest.mark.parametrize("noise,n_residual", [(True, 0), (False, 6), (True, 6)])
-def test_whittle_likelihood_gradient_and_fisher_match_finite_differences(noise, n_residual):
+@pytest.mark.parametrize("noise,n_residual,slope,coherent,signed", [
+    (True, 0, False, True, False), (False, 6, False, True, False), (True, 6, False, True, False),
+    (True, 6, True, False, False), (True, 0, True, True, True), (False, 6, True, True, False)])
+def test_whittle_likelihood_gradient_and_fisher_match_finite_differences(noise, n_residual, slope, coherent, signed):
     """The ML refinement's analytic gradient (frequency, damping, direction, input and background
-    covariances, with and without the residual terms of out-of-band modes) against central
-    differences of the likelihood, and its Fisher information against ``Re sum tr(S^-1 dS_i
-    S^-1 dS_j)`` with ``dS`` by central differences of the spectrum."""
+    covariances, with and without the residual terms of out-of-band modes, coherent with the modes
+    or not, the input's slope, the background's sign free) against central differences of the
+    likelihood, and its Fisher information against ``Re sum tr(S^-1 dS_i S^-1 dS_j)`` with ``dS``
+    by central differences of the spectrum. The summed likelihood and the information are
+    compiled loops (:mod:`oma.output_only._whittle_kernels`); the bins' scores are NumPy's stacked
+    products: their sum is the compiled gradient."""
     from oma.output_only import whittle as ml
 
     rng = np.random.default_rng(3)
     m, l, k = 2, 3, 40
     w = 2 * np.pi * np.linspace(8.0, 12.5, k)
     mod = ml._Model(m, l, w, (w / w.mean()) ** 4, ml._residual_columns(w, l)[:, :, :n_residual], noise,
-                    (np.array([10.0, 10.5]), np.array([0.05, 0.05])))
+                    (np.array([10.0, 10.5]), np.array([0.05, 0.05])), coherent=coherent, slope=slope,
+                    signed_background=signed)
     x = rng.normal(size=(k, l)) + 1j * rng.normal(size=(k, l))
-    mq = m + n_residual
-    nc = mq * (mq + 1) // 2
-    p = 0.5 * rng.normal(size=2 * m + m * l + nc + (6 if noise else 0))
-    p[2 * m + m * l:2 * m + m * l + nc] += np.eye(mq)[np.tril_indices(mq)]
+    tm = ml._free_c(mod)
+    nc = tm[0].size
+    p = 0.5 * rng.normal(size=2 * m + m * l + nc + (6 if noise else 0) + int(slope))
+    p[2 * m + m * l:2 * m + m * l + nc] += (tm[0] == tm[1])
     if noise:
-        p[-6:] += [1.0, 0.0, 1.0, 0.0, 0.0, 1.0]
+        p[2 * m + m * l + nc:2 * m + m * l + nc + 6] += [1.0, 0.0, 1.0, 0.0, 0.0, 1.0]
     _, grad = ml._nll(p, mod, x)
     h = 1e-6
     steps = np.eye(p.size) * h
@@ -367,16 +373,30 @@ def test_whittle_likelihood_gradient_and_fisher_match_finite_differences(noise, 
     def spectrum(q):
         pp = ml._unpack(q, mod)
         v = ml._columns(pp, mod)[1]
-        return mod.gain[:, None, None] * (v @ pp.c @ np.conj(np.swapaxes(v, 1, 2))) + pp.n[None]
+        return ml._gain(pp, mod)[:, None, None] * (v @ pp.c @ np.conj(np.swapaxes(v, 1, 2))) + pp.n[None]
 
     sinv = np.linalg.inv(spectrum(p))
     ds = [(spectrum(p + e) - spectrum(p - e)) / (2 * h) for e in steps]
     ref = np.array([[np.real(np.einsum("kab,kbc,kcd,kda->", sinv, a, sinv, b)) for b in ds] for a in ds])
+    if slope:
+        ref[-1, -1] += 1.0 / ml.SLOPE_PRIOR_SD ** 2     # the slope's prior is in the information
     np.testing.assert_allclose(ml._fisher(p, mod), ref, rtol=1e-6, atol=1e-7 * np.max(np.abs(ref)))
-    # the bins' scores (the sandwich's ingredients) add up to the gradient
+    # the bins' scores (the sandwich's ingredients) add up to the gradient (less the slope's prior)
     val, per_bin = ml._nll(p, mod, x, per_bin=True)
-    assert per_bin.shape == (k, p.size) and val == ml._nll(p, mod, x)[0]
-    np.testing.assert_allclose(per_bin.sum(axis=0), grad, rtol=1e-10, atol=1e-12 * np.max(np.abs(grad)))
+    prior = np.zeros(p.size)
+    if slope:
+        beta = ml._unpack(p, mod).beta
+        prior[-1] = beta / ml.SLOPE_PRIOR_SD ** 2
+        val += 0.5 * (beta / ml.SLOPE_PRIOR_SD) ** 2
+    assert per_bin.shape == (k, p.size) and val == pytest.approx(ml._nll(p, mod, x)[0], rel=1e-12)
+    np.testing.assert_allclose(per_bin.sum(axis=0) + prior, grad, rtol=1e-10, atol=1e-12 * np.max(np.abs(grad)))
+    # a model spectrum that is not positive definite (the background of one channel and no
+    # residual terms: rank-deficient) is no fit in both paths
+    if noise and not n_residual:
+        q = p.copy()
+        q[2 * m + m * l + nc:2 * m + m * l + nc + 6] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        q[2 * m + m * l:2 * m + m * l + nc] = 0.0
+        assert ml._nll(q, mod, x)[0] >= 1e30 and ml._fisher(q, mod) is None
 
 
 def test_information_errors_match_the_scatter_of_the_ml_estimate():

@@ -14,6 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._whittle_kernels import compiled
+
 __all__: list[str] = []
 
 
@@ -167,7 +169,7 @@ def _spectrum(p, mod: _Model):
     q = mod.w[:, None] / (2 * np.pi * pp.f[None, :])
     d, v = _columns(pp, mod)
     vh = np.conj(np.swapaxes(v, 1, 2))
-    return pp, q, d, v, vh, _gain(pp, mod)[:, None, None] * (v @ pp.c @ vh) + pp.n[None]
+    return pp, q, d, v, vh, compiled("_model_spectrum")(np.ascontiguousarray(v), pp.c, pp.n, _gain(pp, mod))
 
 
 def _whitener(s):
@@ -175,15 +177,8 @@ def _whitener(s):
     diagonal (K, l); None when ``s`` is not positive definite to working precision (a factor with a
     diagonal ratio under :data:`MAX_CONDITION_ROOT` in a bin, or none at all): such a model is no
     fit, its likelihood is taken as 1e30 and it has no information."""
-    try:  # a singular model spectrum (a Cholesky factor that exists, an inverse that does not) is no fit
-        chol = np.linalg.cholesky(s)
-        diag = np.real(np.diagonal(chol, axis1=1, axis2=2))
-        if not np.all(diag > 0) or not np.all(np.isfinite(diag)) \
-                or np.any(diag.min(axis=1) < MAX_CONDITION_ROOT * diag.max(axis=1)):
-            return None
-        return np.linalg.inv(chol), diag
-    except np.linalg.LinAlgError:
-        return None
+    ok, linv, diag = compiled("_whiten_all")(np.ascontiguousarray(s, dtype=complex), MAX_CONDITION_ROOT)
+    return (linv, diag) if ok else None
 
 
 #: Smallest ratio of the Cholesky factor's diagonal entries per bin (the square root of the
@@ -196,6 +191,8 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     ``per_bin``: the gradient of each bin's term instead, shape (K, n_params) (the scores whose
     outer products give the sandwich covariance; without the slope's prior :data:`SLOPE_PRIOR_SD`,
     which is no bin's term)."""
+    if not per_bin:
+        return _nll_sum(p, mod, x)
     f0, z0 = mod.ref
     m = mod.m
     pp, q, d, v, vh, s = _spectrum(p, mod)
@@ -247,6 +244,48 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     return val, grad
 
 
+def _nll_sum(p, mod: _Model, x):
+    """:func:`_nll` summed over the bins: the same terms, formed bin by bin in one compiled pass
+    (:func:`oma.output_only._whittle_kernels._likelihood_terms`) instead of stacked NumPy
+    products."""
+    f0, z0 = mod.ref
+    m = mod.m
+    pp = _unpack(p, mod)
+    f, z, u, norm, lc, ln, c, n, tm, tl = pp[:10]
+    q = mod.w[:, None] / (2 * np.pi * f[None, :])
+    d, v = _columns(pp, mod)
+    ok, logdet, quad, ar, gr, bu, gv, slope = compiled("_likelihood_terms")(
+        np.ascontiguousarray(v), c, n, np.ascontiguousarray(_gain(pp, mod), dtype=float), np.ascontiguousarray(x),
+        np.ascontiguousarray(u), np.ascontiguousarray(d), np.ascontiguousarray(mod.log_w if mod.slope
+                                                                               else np.zeros(mod.w.size)),
+        MAX_CONDITION_ROOT)
+    grad = np.zeros_like(p)
+    if not ok:
+        return 1e30, grad
+    val = float(logdet + quad)
+    dd = -bu / d ** 2
+    dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :])
+    dd_dz = 2j * q / (2 * z0[None, :])
+    grad[:m] = 2 * np.real(np.sum(dd * dd_df, axis=0)) * f0 * z0
+    grad[m:2 * m] = 2 * np.real(np.sum(dd * dd_dz, axis=0)) * z
+    gv = 2 * np.real(gv)
+    gv = (gv - np.sum(gv * u, axis=-1, keepdims=True) * u) / norm[:, None]
+    i = 2 * m + m * mod.l
+    grad[2 * m:i] = gv.ravel()
+    ar = 0.5 * (ar + ar.T)
+    grad[i:i + tm[0].size] = (2 * ar @ lc)[tm[0], tm[1]]
+    if mod.noise:
+        gr = 0.5 * (gr + gr.T)
+        gn = np.where(tl[0] == tl[1], 1.0, 2.0) * gr[tl[0], tl[1]] if mod.signed_background \
+            else (2 * gr @ ln)[tl[0], tl[1]]
+        grad[i + tm[0].size:i + tm[0].size + tl[0].size] = gn
+    if mod.slope:
+        grad[-1] = slope if abs(pp.beta) < MAX_SLOPE else 0.0
+        val += 0.5 * (pp.beta / SLOPE_PRIOR_SD) ** 2
+        grad[-1] += pp.beta / SLOPE_PRIOR_SD ** 2
+    return val, grad
+
+
 def _fisher(p, mod: _Model):
     """Fisher information of the Whittle likelihood, ``J_ij = Re sum_k tr(S^-1 dS_i S^-1 dS_j)``.
 
@@ -259,59 +298,33 @@ def _fisher(p, mod: _Model):
     m, l = mod.m, mod.l
     pp, q, d, v, vh, s = _spectrum(p, mod)
     f, z, u, norm, lc, ln, c, n, tm, tl = pp[:10]
-    gain = _gain(pp, mod)
     white = _whitener(s)
     if white is None:
         return None
-    linv = white[0]                                                        # (K, l, l)
-    vc = v @ c
-    g = np.sqrt(gain)[None, :, None]
+    # the pairs (X_i, Y_i), each a multiple of a column of V, V C, V L_C or of the directions'
+    # (I - u u^T) / |v|: frequency and damping X = -V_r (dd/d_r) sqrt(gain), Y = (V C)_r
+    # sqrt(gain); direction (r, a) X = (I - u u^T)_a / (|v| d_r) sqrt(gain), Y = (V C)_r sqrt(gain);
+    # L_C's entry (a, b) X = V_a sqrt(gain), Y = (V L_C)_b sqrt(gain); the background's
+    # Cholesky entry (a, b) X = e_a, Y = L_N e_b (signed: X = e_a, Y = e_b, halved on the
+    # diagonal); the slope, one pair per column j of V L_C, X = log(w/w_c) / 2 (V L_C)_j sqrt(gain),
+    # Y = (V L_C)_j sqrt(gain). Whitened by L^-1 bin by bin, and A_i = X_i Y_i^H + Y_i X_i^H is
+    # Hermitian: in its real coordinates (the diagonal, and sqrt 2 times the real and imaginary
+    # parts of the upper triangle) Re tr(A_i A_j) is a real inner product, so J is one real Gram
+    # matrix (a quarter of the complex one's arithmetic)
     dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :]) * (f0 * z0)[None, :]
     dd_dz = 2j * q / (2 * z0[None, :]) * z[None, :]
-    xs, ys = [], []
-    for dd in (dd_df, dd_dz):
-        xs.append(np.moveaxis(-v[:, :, :m] * (dd / d)[:, None, :], 2, 0) * g)
-        ys.append(np.moveaxis(vc[:, :, :m], 2, 0) * g)
     du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]     # (m, a, j)
-    xs.append((du[:, :, None, :] / d.T[:, None, :, None]).reshape(m * l, mod.w.size, l) * g)
-    ys.append(np.repeat(np.moveaxis(vc[:, :, :m], 2, 0), l, axis=0) * g)
-    vl = v @ lc
-    xs.append(np.moveaxis(v[:, :, tm[0]], 2, 0) * g)
-    ys.append(np.moveaxis(vl[:, :, tm[1]], 2, 0) * g)
-    if tl[0].size:
-        k = mod.w.size
-        xs.append(np.broadcast_to(np.eye(l)[tl[0]][:, None, :], (tl[0].size, k, l)).astype(complex))
-        # dS = e_a (L e_b)^T + ...; signed: dS = e_a e_b^T + e_b e_a^T, e_a e_a^T on the diagonal
-        yn = np.eye(l)[tl[1]] * np.where(tl[0] == tl[1], 0.5, 1.0)[:, None] if mod.signed_background \
-            else ln[:, tl[1]].T
-        ys.append(np.broadcast_to(yn[:, None, :], (tl[0].size, k, l)).astype(complex))
-    n_slope = vl.shape[2] if mod.slope else 0
-    if n_slope:   # one pair per column j of V L_C: X = log(w/w_c) / 2 (V L_C)_j, Y = (V L_C)_j
-        xs.append(np.moveaxis(vl, 2, 0) * (0.5 * mod.log_w)[None, :, None] * g)
-        ys.append(np.moveaxis(vl, 2, 0) * g)
-    # whitened, channel first: xw[a] = sum_b L^-1[:, a, b] x[b] (L^-1 lower triangular), each (P, K)
-    x = np.ascontiguousarray(np.concatenate(xs).transpose(2, 0, 1))
-    y = np.ascontiguousarray(np.concatenate(ys).transpose(2, 0, 1))
-    xw = [sum(linv[None, :, a, b] * x[b] for b in range(a + 1)) for a in range(l)]
-    yw = [sum(linv[None, :, a, b] * y[b] for b in range(a + 1)) for a in range(l)]
-    xr, xi = [t.real for t in xw], [t.imag for t in xw]
-    yr, yi = [t.real for t in yw], [t.imag for t in yw]
-    # A_i = X_i Y_i^H + Y_i X_i^H is Hermitian: in its real coordinates (the diagonal, and sqrt 2
-    # times the real and imaginary parts of the upper triangle) Re tr(A_i A_j) is a real inner
-    # product, so J is one real Gram matrix (a quarter of the complex one's arithmetic)
-    cols, s2 = [], np.sqrt(2.0)
-    for a in range(l):
-        cols.append(2.0 * (xr[a] * yr[a] + xi[a] * yi[a]))
-        for b in range(a + 1, l):
-            cols.append(s2 * (xr[a] * yr[b] + xi[a] * yi[b] + yr[a] * xr[b] + yi[a] * xi[b]))
-            cols.append(s2 * (xi[a] * yr[b] - xr[a] * yi[b] + yi[a] * xr[b] - yr[a] * xi[b]))
-    r = np.concatenate(cols, axis=1)
-    if not mod.slope:
-        return r @ r.T
-    # the slope's row: the sum of its column pairs' (none when no column is left: a zero row)
-    r = np.vstack([r[:r.shape[0] - n_slope], r[r.shape[0] - n_slope:].sum(axis=0, keepdims=True)])
-    jm = r @ r.T
-    jm[-1, -1] += 1.0 / SLOPE_PRIOR_SD ** 2     # the slope's prior
+    yn = np.eye(l)[tl[1]] * np.where(tl[0] == tl[1], 0.5, 1.0)[:, None] if mod.signed_background \
+        else ln[:, tl[1]].T
+    r = compiled("_information_rows")(
+        np.ascontiguousarray(v), np.ascontiguousarray(v @ c), np.ascontiguousarray(v @ lc),
+        np.ascontiguousarray(d), np.ascontiguousarray(dd_df), np.ascontiguousarray(dd_dz),
+        np.ascontiguousarray(du.reshape(m * l, l), dtype=complex), np.sqrt(_gain(pp, mod)),
+        np.ascontiguousarray(tm[0]), np.ascontiguousarray(tm[1]), np.ascontiguousarray(tl[0]),
+        np.ascontiguousarray(yn, dtype=complex).reshape(tl[0].size, l), 0.5 * mod.log_w, bool(mod.slope), white[0])
+    jm = r.T @ r
+    if mod.slope:
+        jm[-1, -1] += 1.0 / SLOPE_PRIOR_SD ** 2     # the slope's prior
     return jm
 
 
