@@ -212,6 +212,11 @@ def test_identify_output_only_scales_x_and_y_and_flags_what_it_cannot():
         assert abs(res.model.stiffness_N_m[j] / TRUTH.stiffness_N_m[k] - 1) < 0.10
     d = res.to_dict()
     assert {"model", "scaling", "stiffness_uncertainty", "modes", "warnings"} <= set(d)
+    # the model's directions are those the mass lines turned (the lines solved with them), each
+    # mode entry keeps the resonance band's
+    assert d["directions_source"] == "mass lines"
+    assert not np.allclose(res.model.directions, res.modes.directions)
+    assert [m["direction"] for m in d["modes"]] == res.modes.directions.tolist()
     fig, ax = res.plot()  # Agg: one error bar per mode, the 90 Hz line drawn
     assert len(ax.lines) >= 1 and ax.get_xlabel() == "natural frequency (Hz)"
     import matplotlib.pyplot as plt
@@ -252,6 +257,8 @@ def test_no_harmonics_no_scale_and_untrusted():
     res = identify_output_only([_record(5, harmonics=False)])
     assert res.scaling == "none" and not res.trusted and not res.scaled
     assert any("no tooth-passing line" in w for w in res.warnings)
+    assert res.to_dict()["directions_source"] == "resonance band"
+    np.testing.assert_array_equal(res.model.directions, res.modes.directions)
 
 
 def test_compare_models_pairs_by_frequency_and_direction():

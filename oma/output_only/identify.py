@@ -88,6 +88,10 @@ class OutputOnlyIdentification:
     unresolved_modes : tuple of UnresolvedMode
         Modes whose band holds a second shape of response, two modes taken for one
         (:mod:`oma.output_only.resolution`); any leaves the model untrusted.
+    directions_source : str
+        Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
+        ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_levels`, and the
+        lines solved with them).
     """
 
     model: ModalModel
@@ -103,6 +107,7 @@ class OutputOnlyIdentification:
     lines_scaling: StiffnessScaling | None = field(default=None, repr=False)
     unexplained_peaks: tuple = ()
     unresolved_modes: tuple = ()
+    directions_source: str = "resonance band"
 
     @property
     def scaled(self) -> bool:
@@ -142,6 +147,8 @@ class OutputOnlyIdentification:
         out["unexplained_peaks"] = [{"axis": "XYZ"[p.channel], "freq_hz": p.freq_hz, "ratio_to_median": p.ratio}
                                     for p in self.unexplained_peaks]
         out["unresolved_modes"] = [u.to_dict() for u in self.unresolved_modes]
+        # each entry of ``modes`` has the resonance band's direction; the model's are these
+        out["directions_source"] = self.directions_source
         out["warnings"] = list(self.warnings)
         return out
 
@@ -282,6 +289,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     by_background = np.zeros(modes.n_modes, dtype=bool)
     levels_disagree = False
     above = None
+    directions_source = "resonance band"
     if modes.n_modes == 0:
         warnings.append("no mode found in the response")
     else:
@@ -305,7 +313,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                     again, _ = _scale(records, slices, _with_directions(modes, axes, turned), quantity, axes,
                                       scaling, coefficient_relative_sd, level, top, direction_sd)
                     if again is not None:
-                        stiffness = again
+                        stiffness, directions_source = again, "mass lines"
             for k in np.flatnonzero(stiffness.too_far):
                 near = stiffness.lines_hz[np.argmin(np.abs(stiffness.lines_hz - modes.freq_hz[k]))]
                 sd = stiffness.statistical_relative_sd[k]
@@ -367,7 +375,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                                     warnings=tuple(warnings), quantity=quantity, background=background,
                                     scaled_by=scaled_by, sample_rate_hz=fs,
                                     lines_scaling=lines_scaling if background is not None else None,
-                                    unexplained_peaks=tuple(peaks), unresolved_modes=tuple(unresolved))
+                                    unexplained_peaks=tuple(peaks), unresolved_modes=tuple(unresolved),
+                                    directions_source=directions_source)
 
 
 def _background_levels(residuals, fs, modes: OutputOnlyModes, axes, quantity, lines, too_far, top_hz):
