@@ -11,7 +11,7 @@ force, the same records can be identified the force-based way and the two compar
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -88,18 +88,13 @@ class OutputOnlyIdentification:
     sample_rate_hz : float
     lines_scaling : StiffnessScaling or None
         With ``background``: what the lines alone gave (``stiffness`` has the background's values
-        for the modes it scaled), with the directions the mass lines turned where their levels are
-        the background's (:func:`_background_levels`).
+        for the modes it scaled).
     unexplained_peaks : tuple of UnexplainedPeak
         Peaks of the residual spectra no identified mode explains (:mod:`oma.output_only.coverage`);
         any leaves the model untrusted.
     unresolved_modes : tuple of UnresolvedMode
         Modes whose band holds a second shape of response, two modes taken for one
         (:mod:`oma.output_only.resolution`); any leaves the model untrusted.
-    directions_source : str
-        Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
-        ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_levels`, and the
-        lines solved with them).
     """
 
     model: ModalModel
@@ -115,7 +110,6 @@ class OutputOnlyIdentification:
     lines_scaling: StiffnessScaling | None = field(default=None, repr=False)
     unexplained_peaks: tuple = ()
     unresolved_modes: tuple = ()
-    directions_source: str = "resonance band"
 
     @property
     def scaled(self) -> bool:
@@ -155,8 +149,6 @@ class OutputOnlyIdentification:
         out["unexplained_peaks"] = [{"axis": "XYZ"[p.channel], "freq_hz": p.freq_hz, "ratio_to_median": p.ratio}
                                     for p in self.unexplained_peaks]
         out["unresolved_modes"] = [u.to_dict() for u in self.unresolved_modes]
-        # each entry of ``modes`` has the resonance band's direction; the model's are these
-        out["directions_source"] = self.directions_source
         out["undetermined_directions"] = [
             {"freq_hz": float(f), "direction_standard_error_deg": float(np.degrees(se))}
             for f, se in zip(self.modes.freq_hz, self.modes.direction_se_rad)
@@ -310,7 +302,6 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     by_background = np.zeros(modes.n_modes, dtype=bool)
     levels_disagree = False
     above = None
-    directions_source = "resonance band"
     if modes.n_modes == 0:
         warnings.append("no mode found in the response")
     else:
@@ -321,20 +312,6 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
             warnings.append(f"modes not scaled: {why}")
         else:
             used = scaling
-            levels, mass_lines = None, False
-            if background_anisotropy is not None and modes.n_modes > 1:
-                levels, mass_lines, turned = _background_levels(residuals, fs, modes, axes, quantity, lines,
-                                                                stiffness.too_far, top)
-                if turned is not None:
-                    # the lines solved again with the directions the mass lines turned (the close
-                    # pair's from the resonance band are tilted by 5-30 degrees, and a mode the
-                    # lines scale takes the response of its tilted neighbour: session 19, the extra
-                    # case's X 4.2 % median, 12.0 % max over 20 records; 1.6 % and 11.6 % with the
-                    # turned directions, :mod:`oma.output_only.mass_line`)
-                    again, _ = _scale(records, slices, _with_directions(modes, axes, turned), quantity, axes,
-                                      scaling, coefficient_relative_sd, level, top, direction_sd)
-                    if again is not None:
-                        stiffness, directions_source = again, "mass lines"
             for k in np.flatnonzero(stiffness.too_far):
                 near = stiffness.lines_hz[np.argmin(np.abs(stiffness.lines_hz - modes.freq_hz[k]))]
                 sd = stiffness.statistical_relative_sd[k]
@@ -348,7 +325,9 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
             # and where they scale all, a level far off the others' says one of them is wrong
             # (session 18: under a red background the lines gave Z 73 % soft with a stated 19 %,
             # trusted; its level came out 10x under X's at the same frequency)
-            if levels is not None:
+            if background_anisotropy is not None and modes.n_modes > 1:
+                levels, mass_lines = _background_levels(residuals, fs, modes, axes, quantity, lines,
+                                                        stiffness.too_far, top)
                 background = background_level(stiffness, *levels, anisotropy_log_sd=background_anisotropy,
                                               source="mass lines" if mass_lines else "resonances")
                 if background is not None and np.any(stiffness.too_far):
@@ -396,40 +375,29 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                                     warnings=tuple(warnings), quantity=quantity, background=background,
                                     scaled_by=scaled_by, sample_rate_hz=fs,
                                     lines_scaling=lines_scaling if background is not None else None,
-                                    unexplained_peaks=tuple(peaks), unresolved_modes=tuple(unresolved),
-                                    directions_source=directions_source)
+                                    unexplained_peaks=tuple(peaks), unresolved_modes=tuple(unresolved))
 
 
 def _background_levels(residuals, fs, modes: OutputOnlyModes, axes, quantity, lines, too_far, top_hz):
-    """The modes' input levels for the background's scale, whether they come from the mass
-    lines (:mod:`oma.output_only.mass_line`; not for displacements), and the directions the mass
-    lines turned (in the measured channels; None when the levels are the resonances'): the mass
-    lines' where the band outside the modes' resonances holds enough bins, the fit explains them
-    (deviance ratio at most :data:`MAX_MASS_LINE_MISFIT`) and they measure every mode to be scaled
-    (``too_far``) more precisely than its resonance does; else the resonances' (the refinement's).
-    The band reaches up to ``top_hz``, as far as the lines that scale the modes (the model is taken
-    to hold there)."""
+    """The modes' input levels for the background's scale, and whether they come from the mass
+    lines (:mod:`oma.output_only.mass_line`; not for displacements): those where the band outside the
+    modes' resonances holds enough bins, the fit explains them (deviance ratio at most
+    :data:`MAX_MASS_LINE_MISFIT`) and they measure every mode to be scaled (``too_far``) more
+    precisely than its resonance does; else the resonances' (the refinement's). The band reaches
+    up to ``top_hz``, as far as the lines that scale the modes (the model is taken to hold there)."""
     ml = mass_line_levels(residuals, fs, modes.freq_hz, modes.damping_ratio, modes.directions[:, axes],
                           modes.direction_se_rad, derivative=MOTION_QUANTITIES.index(quantity), lines_hz=lines,
                           band_hz=(modes.band_hz[0], top_hz)) if quantity != "displacement" else None
     resonances = (modes.input_level, modes.input_level_log_se)
     if ml is None or not ml.misfit <= MAX_MASS_LINE_MISFIT:
-        return resonances, False, None
+        return resonances, False
     # only where they measure the modes to scale better than the resonances do (a mode inside the
     # band leaves few bins clear of every resonance: session 18, a 60 Hz mode beside the paper's
     # cell left Z's level uncertain by 0.4-0.7 in log)
     target = np.asarray(too_far) & np.isfinite(modes.input_level_log_se)
     if not np.all(ml.input_level_log_se[target] < modes.input_level_log_se[target]):
-        return resonances, False, None
-    return (ml.input_level, ml.input_level_log_se), True, ml.directions
-
-
-def _with_directions(modes: OutputOnlyModes, axes, directions) -> OutputOnlyModes:
-    """``modes`` with their directions in the measured channels (``axes``) replaced by
-    ``directions`` (n_modes, l), renormalised."""
-    d = np.array(modes.directions, dtype=float)
-    d[:, axes] = directions
-    return replace(modes, directions=d / np.linalg.norm(d, axis=1, keepdims=True))
+        return resonances, False
+    return (ml.input_level, ml.input_level_log_se), True
 
 
 def _reference_levels(background: BackgroundLevel, modes: OutputOnlyModes, fs: float) -> str:

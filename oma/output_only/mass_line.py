@@ -46,15 +46,13 @@ there, a first version's Z was up to 35 % off in 12 records, against 6 % with th
 directions). It returns each mode's level in the convention of the refinement's, and
 :mod:`oma.output_only.background` scales with them as with the resonances' (the lines'
 stiffnesses of the modes they scale, the spread allowed between directions), and the turned
-directions, with which :func:`oma.output_only.identify.identify_output_only` solves the lines
-again. Measured (session 19, 20 records per case, the same records): the close pair's Z direction
-11.6 -> 6.6 degrees median off the truth, 31 -> 18 max (extra case; 9.6 -> 5.2, 24 -> 17 tooth),
-X's about as far as before (4.3 -> 4.1 median, 14.5 -> 14.3 max) but turned with Z, consistently for
-the lines: X stiffness 4.2 -> 1.6 % median, 12.0 -> 11.6 % max in the extra case (one record from
--7.8 to -11.6 %, another from +12.0 to +5.2 %), 8.7 -> 3.8 % max tooth, 9.3 -> 4.2 % on-mode. The
-refinement's errors of the pair's directions are not strongly correlated (canonical correlation
-0.17-0.33 median, 0.55 at most) and a prior with their joint covariance changed the turned
-directions by about a degree.
+directions, which nothing scales with. Session 19 solved the tooth lines again with them: on the
+paper's cell (modes along the axes) X's worst error fell from 8.8-9.3 % to 3.8-4.2 % and the close
+pair's Z direction from 11.6 to 6.6 degrees median off, but on the probe structures (in-plane modes
+at 30 and 45 degrees) the lowest mode's stiffness went from 1.8 / 2.7 % to 6.1 / 13.6 % median off,
+under the simulator's background of 232 / 278 N^2 along X / Y: the turned directions carry the
+isotropy assumption, which a 20 % anisotropy breaks for oblique modes (with 250 / 250 / 250 they
+helped there too: 2.0 / 4.4 -> 1.4 / 3.0 %). Not adopted; docs/output_only.md.
 Standard errors: the larger of the inverse Hessian's and the sandwich's (blocks' scores; White
 1982), as the refinement does (:func:`oma.output_only._ml_inference._information_se`).
 
@@ -113,7 +111,8 @@ class MassLineLevels:
         The blocks' deviance over its expectation (:func:`_deviance_ratio`; about 1 where the
         model explains them).
     directions : ndarray, shape (n_modes, l)
-        The directions as the fit turned them (unit; a mode held: as given).
+        The directions as the fit turned them (unit; a mode held: as given). Diagnostic: they carry
+        the isotropy assumption (module docstring), and nothing scales with them.
     """
 
     input_level: np.ndarray
