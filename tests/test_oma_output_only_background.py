@@ -77,16 +77,18 @@ def test_z_beside_x_is_scaled_by_the_background_level_and_says_what_it_assumes(p
     assert res.stiffness.relative_sd[jz] > np.hypot(ANISOTROPY_LOG_SD / 2, res.stiffness.coefficient_relative_sd)
     assert res.scaled and not res.trusted
     assert any("background force's level" in w and "assumes" in w for w in res.warnings)
-    # X and Y keep the lines' values to the bit; the background comes from them
+    # X and Y keep the lines' values to the bit (solved with the directions the mass lines turned,
+    # within the isotropy test's 10 % of those with the refinement's); the background comes from them
     for k_ in (0, 1):
         j = _match(res.model, k_)
         assert res.scaled_by[j] == "lines"
-        assert res.model.stiffness_N_m[j] == lines_only.model.stiffness_N_m[j]
+        assert res.model.stiffness_N_m[j] == res.lines_scaling.stiffness_N_m[j]
+        assert abs(res.model.stiffness_N_m[j] / lines_only.model.stiffness_N_m[j] - 1) < 0.10
     assert sorted(res.background.reference.tolist()) == sorted([_match(res.model, 0), _match(res.model, 1)])
     d = res.to_dict()
     entry = d["modes"][jz]["stiffness_uncertainty"]
     assert entry["scaled_by"] == "background"
-    lines_k = lines_only.model.stiffness_N_m[jz]
+    lines_k = res.lines_scaling.stiffness_N_m[jz]
     assert entry["lines"]["stiffness_N_m"] == (float(lines_k) if np.isfinite(lines_k) else None)
     bg = d["background_force"]
     assert bg["white_variance_N2"] == pytest.approx(bg["psd_N2_Hz"] * FS) and bg["consistent"]

@@ -70,8 +70,8 @@ from scipy import optimize, special
 
 from .ml import LINE_GUARD_HZ, _band_bins, _spectra
 
-__all__ = ["MassLineLevels", "mass_line_levels", "CLEARANCE", "STIFFNESS_CLEARANCE", "SUB_BANDS", "BLOCK_BINS",
-           "MIN_BLOCKS"]
+__all__ = ["MassLineLevels", "mass_line_levels", "mass_line_directions", "CHANNEL_SCALE_SD", "CLEARANCE",
+           "STIFFNESS_CLEARANCE", "SUB_BANDS", "BLOCK_BINS", "MIN_BLOCKS"]
 
 #: Bins are used on a mode's mass-line side from ``f / f_r >= CLEARANCE`` (there ``|g_r|`` is within
 #: 80 % of its asymptote 1 and a 0.5 % frequency error moves ``|g_r|^2`` by 1.6 %) ...
@@ -84,6 +84,10 @@ STIFFNESS_CLEARANCE = 2.0
 #: Intervals of the background's log level, piecewise linear in log frequency (knots at the
 #: blocks' quantiles).
 SUB_BANDS = 4
+#: Prior standard deviation of each channel's log background level against the first's in
+#: :func:`mass_line_directions` (the paper's measured variances 232 / 278 / 251 N^2 differ by 0.18
+#: in log at most; a generous prior that keeps the fit regular where the data do not fix it).
+CHANNEL_SCALE_SD = 1.0
 #: Adjacent bins averaged into one block (a Wishart of this many degrees of freedom).
 BLOCK_BINS = 8
 #: Fewer blocks than this: no mass-line scale.
@@ -190,34 +194,15 @@ def _curvature(per_block, posterior, p, prior_prec, h: float = 1e-4):
     return cov, cov @ (grads @ grads.T + np.diag(prior_prec)) @ cov
 
 
-def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
-                     derivative: int = 2, lines_hz=(), band_hz=(4.0, 100.0),
-                     line_guard_hz: float = LINE_GUARD_HZ) -> MassLineLevels | None:
-    """Every mode's input level from the mass lines of the background's response (module docstring).
-
-    Parameters
-    ----------
-    residuals : sequence of ndarray, shape (l, n_samples)
-        Accelerations or velocities of one pose with the milling lines removed.
-    freq_hz, damping : array_like, shape (n,)
-        The modes (refined).
-    directions : array_like, shape (n, l)
-        Unit directions in the channels.
-    direction_se_rad : array_like, shape (n,)
-        Their angular standard errors (the prior of the turn; NaN or 0: held).
-    derivative : {1, 2}
-        Velocities (differentiated here) or accelerations.
-    lines_hz : array_like
-        Milling lines removed from the residuals; bins within ``line_guard_hz`` are left out.
-    band_hz : (float, float)
-        The band used (up to 0.45 ``fs``): every mode in it must be in the model (one missing shows
-        in ``misfit``).
-
-    Returns
-    -------
-    MassLineLevels or None
-        None without modes, with fewer than :data:`MIN_BLOCKS` blocks, or when the fit fails.
-    """
+def _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_rad, derivative, lines_hz, band_hz,
+         line_guard_hz, channel_scale_sd: float | None = None):
+    """The mass lines' Whittle MAP (module docstring): the optimum ``p`` and what is evaluated at it
+    (per-block likelihood, posterior, priors' precision, spectrum, turned directions, the log
+    level's basis, its size, the modes' angular frequencies, the bins and the blocks' spectral
+    matrices); None without modes, with too few blocks, or when the fit fails. ``channel_scale_sd``:
+    the background's level may differ between channels, ``s(f) A D A^H`` with ``D`` diagonal (the
+    first channel's 1), each other channel's log scale a parameter with this prior standard
+    deviation (:func:`mass_line_directions`)."""
     if derivative not in (1, 2):
         raise ValueError(f"the mass lines need velocities or accelerations (derivative 1 or 2), not {derivative!r}")
     fs = float(sample_rate_hz)
@@ -248,15 +233,18 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
     turn = (np.isfinite(se_dir) & (se_dir > 0)) if l > 1 else np.zeros(n, bool)
     tang = [_tangent(u0[r]) for r in range(n)]
     n_t = int(turn.sum()) * (l - 1)
+    n_c = l - 1 if channel_scale_sd is not None else 0
     # parameters: log s at the knots, log(1/m) of modes 1.. (mode 0's is 0: the scale of s and
-    # the masses is one degree of freedom the data do not fix), the turns
-    p0_ = np.zeros(n_s + n - 1 + n_t)
+    # the masses is one degree of freedom the data do not fix), the turns, the channels' log scales
+    p0_ = np.zeros(n_s + n - 1 + n_t + n_c)
     a_mat = np.einsum("ri,rj,br->bij", u0, u0, g)
     p_mod = np.real(np.einsum("bij,bij->b", a_mat, a_mat.conj()))
     p_obs = np.real(np.trace(s_hat, axis1=1, axis2=2))
     p0_[:n_s] = np.linalg.lstsq(hat, np.log(p_obs / p_mod), rcond=None)[0]
     prior_prec = np.zeros(p0_.size)
     prior_prec[n_s + n - 1:n_s + n - 1 + n_t] = np.repeat(1.0 / se_dir[turn] ** 2, l - 1)
+    if n_c:
+        prior_prec[n_s + n - 1 + n_t:] = 1.0 / channel_scale_sd ** 2
 
     def turned(p):
         d = p[n_s + n - 1:n_s + n - 1 + n_t].reshape(-1, l - 1)
@@ -270,6 +258,8 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
         la = np.concatenate([[0.0], p[n_s:n_s + n - 1]])
         u = turned(p)
         a = np.einsum("ri,rj,br->bij", u, u, g * np.exp(la)[None])
+        if n_c:
+            a = a * np.exp(0.5 * np.concatenate([[0.0], p[n_s + n - 1 + n_t:]]))[None, None, :]
         return np.exp(hat @ p[:n_s])[:, None, None] * (a @ a.conj().transpose(0, 2, 1))
 
     def per_block(p):
@@ -290,6 +280,59 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
     p = optimize.minimize(objective, p0_, method="BFGS", options={"gtol": 1e-6, "maxiter": 500}).x
     if per_block(p) is None:
         return None
+    return p, per_block, posterior, prior_prec, spectrum, turned, hat, n_s, wr, w_bins, s_hat
+
+
+def mass_line_directions(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
+                         derivative: int = 2, lines_hz=(), band_hz=(4.0, 100.0), line_guard_hz: float = LINE_GUARD_HZ,
+                         channel_scale_sd: float = CHANNEL_SCALE_SD):
+    """The modes' directions turned to explain the mass lines, the background's level free to differ
+    between channels (``s(f) A D A^H``, ``D`` diagonal, each log scale with the prior standard
+    deviation ``channel_scale_sd``): the directions without the isotropy the levels need. Arguments as
+    :func:`mass_line_levels`. Returns ``(directions (n, l), channel_scales (l,))`` or None."""
+    fit = _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_rad, derivative, lines_hz,
+               band_hz, line_guard_hz, channel_scale_sd=channel_scale_sd)
+    if fit is None:
+        return None
+    p, turned = fit[0], fit[5]
+    l = np.asarray(directions).shape[1]
+    return turned(p), np.exp(np.concatenate([[0.0], p[p.size - (l - 1):]]))
+
+
+def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
+                     derivative: int = 2, lines_hz=(), band_hz=(4.0, 100.0),
+                     line_guard_hz: float = LINE_GUARD_HZ) -> MassLineLevels | None:
+    """Every mode's input level from the mass lines of the background's response (module docstring).
+
+    Parameters
+    ----------
+    residuals : sequence of ndarray, shape (l, n_samples)
+        Accelerations or velocities of one pose with the milling lines removed.
+    freq_hz, damping : array_like, shape (n,)
+        The modes (refined).
+    directions : array_like, shape (n, l)
+        Unit directions in the channels.
+    direction_se_rad : array_like, shape (n,)
+        Their angular standard errors (the prior of the turn; NaN or 0: held).
+    derivative : {1, 2}
+        Velocities (differentiated here) or accelerations.
+    lines_hz : array_like
+        Milling lines removed from the residuals; bins within ``line_guard_hz`` are left out.
+    band_hz : (float, float)
+        The band used (up to 0.45 ``fs``): every mode in it must be in the model (one missing shows
+        in ``misfit``).
+
+    Returns
+    -------
+    MassLineLevels or None
+        None without modes, with fewer than :data:`MIN_BLOCKS` blocks, or when the fit fails.
+    """
+    fit = _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_rad, derivative, lines_hz,
+               band_hz, line_guard_hz)
+    if fit is None:
+        return None
+    p, per_block, posterior, prior_prec, spectrum, turned, hat, n_s, wr, w_bins, s_hat = fit
+    n = wr.size
     # the levels log(s / m_r^2) (log s averaged over the blocks) are what the data fix: linear
     # combinations of the parameters; their errors from the curvature and the blocks' scores
     comb = np.zeros((n, p.size))
