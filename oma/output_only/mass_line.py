@@ -45,15 +45,20 @@ angular error as the prior (the close pair's are tilted by 5-20 degrees in 20 s 
 there, a first version's Z was up to 35 % off in 12 records, against 6 % with the true
 directions). It returns each mode's level in the convention of the refinement's, and
 :mod:`oma.output_only.background` scales with them as with the resonances' (the lines'
-stiffnesses of the modes they scale, the spread allowed between directions), and the turned
-directions, which nothing scales with. Session 19 solved the tooth lines again with them: on the
-paper's cell (modes along the axes) X's worst error fell from 8.8-9.3 % to 3.8-4.2 % and the close
-pair's Z direction from 11.6 to 6.6 degrees median off, but on the probe structures (in-plane modes
-at 30 and 45 degrees) the lowest mode's stiffness went from 1.8 / 2.7 % to 6.1 / 13.6 % median off,
-under the simulator's background of 232 / 278 N^2 along X / Y: the turned directions carry the
-isotropy assumption, which a 20 % anisotropy breaks for oblique modes (with 250 / 250 / 250 they
-helped there too: 2.0 / 4.4 -> 1.4 / 3.0 %). Not adopted; docs/output_only.md.
-Standard errors: the larger of the inverse Hessian's and the sandwich's (blocks' scores; White
+stiffnesses of the modes they scale, the spread allowed between directions).
+
+The directions it turns carry that isotropy: under the simulator's background (232 / 278 N^2
+along X / Y, the paper's spread) the lines solved with them gave oblique modes (30 and 45 degrees
+in XY) 6-14 % soft in the median (session 19). :func:`mass_line_directions` fits the same band
+with the background's level free to differ between channels (``s(f) A D A^H``, ``D`` diagonal,
+:data:`CHANNEL_SCALE_SD`) and gives only directions (for modes along the channels ``D`` and the
+masses trade, so its levels are not identified); the lines are solved again with those. Measured
+(session 19, 20 records per case): the X stiffness beside Z 8.8-9.3 % -> 5.9-6.2 % at most on the
+paper's cell, the extra-mode case 12.0 -> 11.3 %; the oblique structures' lowest modes as before
+(5.2 and 12.0 % at most), their third modes 12.2 % (was 32.0) and 6.7 % (11.8); the close pair's Z
+direction 10.5 -> 6.1 degrees off in the mean over 8 records.
+
+Standard errors of the levels: the larger of the inverse Hessian's and the sandwich's (blocks' scores; White
 1982), as the refinement does (:func:`oma.output_only._ml_inference._information_se`).
 
 Measured (session 18, ``benchmarks/bench_oma_output_only.py``, 20 records per case): the Z
@@ -116,7 +121,8 @@ class MassLineLevels:
         model explains them).
     directions : ndarray, shape (n_modes, l)
         The directions as the fit turned them (unit; a mode held: as given). Diagnostic: they carry
-        the isotropy assumption (module docstring), and nothing scales with them.
+        the isotropy assumption (module docstring); :func:`mass_line_directions` gives those the
+        lines are solved with.
     """
 
     input_level: np.ndarray
