@@ -138,3 +138,36 @@ def test_levels_that_disagree_where_the_lines_scale_every_mode_leave_the_model_u
     alarm = any("along the modes the lines scale differs" in w for w in res.warnings)
     assert alarm == fires
     assert res.trusted == (not fires)
+
+
+def test_directions_with_the_background_free_between_channels_are_not_bent_by_its_anisotropy():
+    """In-plane modes at 30 degrees under the paper's background (232 / 278 / 251 N^2 along X / Y /
+    Z): the isotropic fit turns the 12 Hz mode away from the truth to explain the 20 % X / Y
+    difference; the fit with the channels' levels free (:func:`mass_line_directions`, the directions
+    the lines are solved with) does not, and its channel scales are that difference (measured,
+    session 19, seeds 0-3: 12 Hz off by 0.3-0.9 degrees against 1.0-1.5, means 0.6 and 1.3; Y / X
+    1.10-1.24 against the simulation's 1.20)."""
+    from oma.output_only.mass_line import mass_line_directions
+
+    c, s_ = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    oblique = ModalModel([12.0, 26.0, 17.0], [0.04, 0.03, 0.05], [1.2e6, 2.5e6, 2.0e6],
+                         [[c, s_, 0], [-s_, c, 0], [0, 0, 1]])
+    iso_err, free_err, ratio = [], [], []
+    for seed in range(3):
+        res = identify_output_only([synthetic_record(oblique, duration_s=20.0, rng=10_000 + seed, spindle_rpm=2700.0,
+                                                     output="acceleration", runout_m=None)])
+        m = res.modes
+        args = ([h.residual for h in m.harmonics], FS, m.freq_hz, m.damping_ratio, m.directions, m.direction_se_rad)
+        kw = dict(lines_hz=np.concatenate([h.freq_hz for h in m.harmonics]), band_hz=(m.band_hz[0], 150.0))
+        iso = mass_line_levels(*args, **kw).directions
+        free, scales = mass_line_directions(*args, **kw)
+        j = int(np.argmin(np.abs(m.freq_hz - 12.0)))
+        off = lambda u: np.degrees(np.arccos(min(1.0, abs(u @ oblique.directions[0]) / np.linalg.norm(u))))  # noqa: E731
+        iso_err.append(off(iso[j]))
+        free_err.append(off(free[j]))
+        ratio.append(scales[1] / scales[0])
+        assert res.directions_source == "mass lines"
+        np.testing.assert_allclose(res.model.directions[j], free[j] / np.linalg.norm(free[j]), atol=1e-12)
+    assert np.mean(free_err) < 0.7 * np.mean(iso_err), (free_err, iso_err)
+    true_ratio = PAPER_BACKGROUND_VARIANCE_N2[1] / PAPER_BACKGROUND_VARIANCE_N2[0]
+    assert abs(np.mean(ratio) / true_ratio - 1) < 0.15, ratio
