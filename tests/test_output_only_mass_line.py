@@ -162,9 +162,8 @@ def test_directions_with_the_background_free_between_channels_are_not_bent_by_it
         iso = mass_line_levels(*args, **kw).directions
         free, scales = mass_line_directions(*args, **kw)
         j = int(np.argmin(np.abs(m.freq_hz - 12.0)))
-        off = lambda u: np.degrees(np.arccos(min(1.0, abs(u @ oblique.directions[0]) / np.linalg.norm(u))))  # noqa: E731
-        iso_err.append(off(iso[j]))
-        free_err.append(off(free[j]))
+        for errs, u in ((iso_err, iso[j]), (free_err, free[j])):
+            errs.append(np.degrees(np.arccos(min(1.0, abs(u @ oblique.directions[0]) / np.linalg.norm(u)))))
         ratio.append(scales[1] / scales[0])
         assert res.directions_source == "mass lines"
         np.testing.assert_allclose(res.model.directions[j], free[j] / np.linalg.norm(free[j]), atol=1e-12)

@@ -56,8 +56,8 @@ MAX_MASS_LINE_MISFIT = 1.5
 #: Measured (session 19): the true modes of 120 benchmark records (six structures, 20 s
 #: accelerations) at most 23.8 (the close pair's Z; median of the records' largest 10.6); the
 #: independent generator's 66 acceleration, 12 velocity and 12 displacement records under 25
-#: (90 % under 13.4), but for a false 12.5 Hz mode beside the close pair (44, 2 % sensor noise); on the real Hurco
-#: files 30-68 on tones and near-duplicates (e.g. 494.6 / 496.7 Hz, 58 / 68).
+#: (90 % under 13.4), but for a false 12.5 Hz mode beside the close pair (44, 2 % sensor noise);
+#: on the real Hurco files 30-68 on tones and near-duplicates (e.g. 494.6 / 496.7 Hz, 58 / 68).
 MAX_DIRECTION_SE_DEG = 30.0
 AXES = ("X", "Y", "Z")
 
@@ -381,8 +381,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     trusted = bool(modes.n_modes > 0 and stiffness is not None and not np.any(stiffness.too_far)
                    and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se))
                    and not stiffness.misfit > MAX_LINE_MISFIT and not above and not unsteady
-                   and not np.any(modes.damping_ratio < LOW_DAMPING) and not peaks and not unresolved and not loose.size
-                   and not levels_disagree)
+                   and not np.any(modes.damping_ratio < LOW_DAMPING) and not peaks and not unresolved
+                   and not loose.size and not levels_disagree)
     if not trusted:
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     model = ModalModel(
