@@ -54,7 +54,7 @@ with the background's level free to differ between channels (``s(f) A D A^H``, `
 :data:`CHANNEL_SCALE_SD`) and gives only directions (for modes along the channels ``D`` and the
 masses trade, so its levels are not identified); the lines are solved again with those. Measured
 (session 19, 20 records per case): the X stiffness beside Z 8.8-9.3 % -> 5.9-6.2 % at most on the
-paper's cell, the extra-mode case 12.0 -> 11.3 %; the oblique structures' lowest modes as before
+paper's cell, the extra-mode case 12.0 -> 11.3 % (two records over 10 %, one before); the oblique structures' lowest modes as before
 (5.2 and 12.0 % at most), their third modes 12.2 % (was 32.0) and 6.7 % (11.8); the close pair's Z
 direction 10.5 -> 6.1 degrees off in the mean over 8 records.
 
