@@ -185,39 +185,6 @@ def _likelihood_terms(v, c, n, gain, x, u, d, log_w, min_ratio):
     return True, logdet, quad, ar, gr, bu, gv, slope
 
 
-def _whitened_rows(x, y, linv):
-    """The information's Gram rows: per parameter ``i`` and bin ``k`` the real coordinates of the
-    Hermitian ``A = L^-1 (X Y^H + Y X^H) L^-H`` (its diagonal, and sqrt 2 times the real and
-    imaginary parts of its upper triangle), so that ``Re tr(A_i A_j)`` is the rows' inner product.
-    ``x``, ``y`` (P, K, l); returns (P, K l^2)."""
-    n_p, n_k, l = x.shape
-    r = np.empty((n_p, n_k * l * l))
-    s2 = math.sqrt(2.0)
-    xw = np.empty(l, dtype=np.complex128)
-    yw = np.empty(l, dtype=np.complex128)
-    for i in range(n_p):
-        for k in range(n_k):
-            for a in range(l):
-                ax = 0.0j
-                ay = 0.0j
-                for b in range(a + 1):
-                    ax += linv[k, a, b] * x[i, k, b]
-                    ay += linv[k, a, b] * y[i, k, b]
-                xw[a] = ax
-                yw[a] = ay
-            col = k * l * l
-            for a in range(l):
-                r[i, col] = 2.0 * (xw[a].real * yw[a].real + xw[a].imag * yw[a].imag)
-                col += 1
-                for b in range(a + 1, l):
-                    r[i, col] = s2 * (xw[a].real * yw[b].real + xw[a].imag * yw[b].imag
-                                      + yw[a].real * xw[b].real + yw[a].imag * xw[b].imag)
-                    r[i, col + 1] = s2 * (xw[a].imag * yw[b].real - xw[a].real * yw[b].imag
-                                          + yw[a].imag * xw[b].real - yw[a].real * xw[b].imag)
-                    col += 2
-    return r
-
-
 def _hermitian_coordinates(xw, yw, r, row, col):
     """The real coordinates of ``X Y^H + Y X^H`` for whitened ``X``, ``Y`` (l,) into ``r[row:, col]``
     (the diagonal, and sqrt 2 times the real and imaginary parts of the upper triangle), added to
