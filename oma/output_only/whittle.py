@@ -193,14 +193,13 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     which is no bin's term)."""
     if not per_bin:
         return _nll_sum(p, mod, x)
-    f0, z0 = mod.ref
     m = mod.m
     pp, q, d, v, vh, s = _spectrum(p, mod)
-    f, z, u, norm, lc, ln, c, n, tm, tl = pp[:10]
+    u, c = pp.u, pp.c
     gain = _gain(pp, mod)
     white = _whitener(s)
     if white is None:
-        return 1e30, np.zeros((x.shape[0], p.size) if per_bin else p.shape)
+        return 1e30, np.zeros((x.shape[0], p.size))
     linv, diag = white
     logdet = 2.0 * np.sum(np.log(diag))
     # the inverse through the Cholesky factor: ``S^-1 = L^-H L^-1`` stays positive definite where
@@ -213,74 +212,67 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     gmat = sinv - y[:, :, None] * np.conj(y)[:, None, :]                   # dL/dS^T, Hermitian
     a = gain[:, None, None] * (vh @ gmat @ v)                              # (K, m+q, m+q)
     b = gain[:, None, None] * (c[None] @ vh @ gmat)[:, :m]                 # (K, m, l)
-    total = (lambda t: np.sum(t, axis=0)) if not per_bin else (lambda t: t)
-    grad = np.zeros((x.shape[0], p.size)) if per_bin else np.zeros_like(p)
     bu = np.einsum("kra,ra->kr", b, u)                                     # (K, m)
+    slope = mod.log_w * np.einsum("kij,ji->k", np.real(a), c) if mod.slope else 0.0
+    grad = _gradient(np.zeros((x.shape[0], p.size)), pp, mod, q, d, bu, b / d[:, :, None], np.real(a),
+                     np.real(gmat), slope, lambda t: t)
+    return val, grad
+
+
+def _response_derivatives(q, f, z, z0):
+    """The derivatives of the normalised inverse response ``d`` (:func:`_response`) in each mode's
+    frequency and damping ratio, (K, m) each."""
+    return (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :]), 2j * q / (2 * z0[None, :])
+
+
+def _gradient(grad, pp: _Params, mod: _Model, q, d, bu, b_over_d, ar, gr, slope, total):
+    """The likelihood's gradient into ``grad`` (n_params,) or, bin by bin, (K, n_params), from
+    ``dL/dS^T = G`` through ``b = gain (C V^H G)[:m]``: ``bu = b . u`` per bin (K, m), weighed bin
+    by bin by the response's derivatives and then reduced by ``total`` (the sum over the bins, or the
+    identity for the bins' scores), and, already so reduced, ``b / d``, ``Re gain V^H G V`` (``ar``),
+    ``Re G`` (``gr``) and the slope's ``log(w / w_c) tr(Re(gain V^H G V) C)``."""
+    f0, z0 = mod.ref
+    m = mod.m
+    f, z, u, norm, lc, ln, tm, tl = pp.f, pp.z, pp.u, pp.norm, pp.lc, pp.ln, pp.tm, pp.tl
     dd = -bu / d ** 2                                                      # dL/dd (times 2 Re)
-    dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :])
-    dd_dz = 2j * q / (2 * z0[None, :])
+    dd_df, dd_dz = _response_derivatives(q, f, z, z0)
     grad[..., :m] = 2 * np.real(total(dd * dd_df)) * f0 * z0
     grad[..., m:2 * m] = 2 * np.real(total(dd * dd_dz)) * z
-    gv = 2 * np.real(total(b / d[:, :, None]))                            # (m, l) dL/du
+    gv = 2 * np.real(b_over_d)                                            # (m, l) dL/du
     gv = (gv - np.sum(gv * u, axis=-1, keepdims=True) * u) / norm[:, None]
     i = 2 * m + m * mod.l
     grad[..., 2 * m:i] = gv.reshape(gv.shape[:-2] + (-1,))
-    ar = np.real(total(a))
     ar = 0.5 * (ar + np.swapaxes(ar, -1, -2))
     grad[..., i:i + tm[0].size] = (2 * ar @ lc)[..., tm[0], tm[1]]
     if mod.noise:
-        gr = np.real(total(gmat))
         gr = 0.5 * (gr + np.swapaxes(gr, -1, -2))
         # through N = L L^T, or N's own entries (dN / dN_ab = E_ab + E_ba off the diagonal)
         gn = np.where(tl[0] == tl[1], 1.0, 2.0) * gr[..., tl[0], tl[1]] if mod.signed_background \
             else (2 * gr @ ln)[..., tl[0], tl[1]]
         grad[..., i + tm[0].size:i + tm[0].size + tl[0].size] = gn
-    if mod.slope:   # dS/dbeta = log(w / w_c) gain V C V^H; the prior 0.5 (beta / sd)^2
-        grad[..., -1] = total(mod.log_w * np.einsum("kij,ji->k", np.real(a), c)) \
-            if abs(pp.beta) < MAX_SLOPE else 0.0
-        if not per_bin:
-            val += 0.5 * (pp.beta / SLOPE_PRIOR_SD) ** 2
-            grad[-1] += pp.beta / SLOPE_PRIOR_SD ** 2
-    return val, grad
+    if mod.slope:   # dS/dbeta = log(w / w_c) gain V C V^H
+        grad[..., -1] = slope if abs(pp.beta) < MAX_SLOPE else 0.0
+    return grad
 
 
 def _nll_sum(p, mod: _Model, x):
     """:func:`_nll` summed over the bins: the same terms, formed bin by bin in one compiled pass
     (:func:`oma.output_only._whittle_kernels._likelihood_terms`) instead of stacked NumPy
     products."""
-    f0, z0 = mod.ref
-    m = mod.m
     pp = _unpack(p, mod)
-    f, z, u, norm, lc, ln, c, n, tm, tl = pp[:10]
-    q = mod.w[:, None] / (2 * np.pi * f[None, :])
+    q = mod.w[:, None] / (2 * np.pi * pp.f[None, :])
     d, v = _columns(pp, mod)
     ok, logdet, quad, ar, gr, bu, gv, slope = compiled("_likelihood_terms")(
-        np.ascontiguousarray(v), c, n, np.ascontiguousarray(_gain(pp, mod), dtype=float), np.ascontiguousarray(x),
-        np.ascontiguousarray(u), np.ascontiguousarray(d), np.ascontiguousarray(mod.log_w if mod.slope
+        np.ascontiguousarray(v), pp.c, pp.n, np.ascontiguousarray(_gain(pp, mod), dtype=float), np.ascontiguousarray(x),
+        np.ascontiguousarray(pp.u), np.ascontiguousarray(d), np.ascontiguousarray(mod.log_w if mod.slope
                                                                                else np.zeros(mod.w.size)),
         MAX_CONDITION_ROOT)
-    grad = np.zeros_like(p)
     if not ok:
-        return 1e30, grad
+        return 1e30, np.zeros_like(p)
     val = float(logdet + quad)
-    dd = -bu / d ** 2
-    dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :])
-    dd_dz = 2j * q / (2 * z0[None, :])
-    grad[:m] = 2 * np.real(np.sum(dd * dd_df, axis=0)) * f0 * z0
-    grad[m:2 * m] = 2 * np.real(np.sum(dd * dd_dz, axis=0)) * z
-    gv = 2 * np.real(gv)
-    gv = (gv - np.sum(gv * u, axis=-1, keepdims=True) * u) / norm[:, None]
-    i = 2 * m + m * mod.l
-    grad[2 * m:i] = gv.ravel()
-    ar = 0.5 * (ar + ar.T)
-    grad[i:i + tm[0].size] = (2 * ar @ lc)[tm[0], tm[1]]
-    if mod.noise:
-        gr = 0.5 * (gr + gr.T)
-        gn = np.where(tl[0] == tl[1], 1.0, 2.0) * gr[tl[0], tl[1]] if mod.signed_background \
-            else (2 * gr @ ln)[tl[0], tl[1]]
-        grad[i + tm[0].size:i + tm[0].size + tl[0].size] = gn
-    if mod.slope:
-        grad[-1] = slope if abs(pp.beta) < MAX_SLOPE else 0.0
+    # the kernel's sums; ``b . u`` per bin (the frequencies' and damping's terms weigh it bin by bin)
+    grad = _gradient(np.zeros_like(p), pp, mod, q, d, bu, gv, ar, gr, slope, lambda t: np.sum(t, axis=0))
+    if mod.slope:   # the prior 0.5 (beta / sd)^2
         val += 0.5 * (pp.beta / SLOPE_PRIOR_SD) ** 2
         grad[-1] += pp.beta / SLOPE_PRIOR_SD ** 2
     return val, grad
@@ -311,8 +303,8 @@ def _fisher(p, mod: _Model):
     # Hermitian: in its real coordinates (the diagonal, and sqrt 2 times the real and imaginary
     # parts of the upper triangle) Re tr(A_i A_j) is a real inner product, so J is one real Gram
     # matrix (a quarter of the complex one's arithmetic)
-    dd_df = (2 * q ** 2 - 2j * z[None, :] * q) / (f[None, :] * 2 * z0[None, :]) * (f0 * z0)[None, :]
-    dd_dz = 2j * q / (2 * z0[None, :]) * z[None, :]
+    dd_df, dd_dz = _response_derivatives(q, f, z, z0)
+    dd_df, dd_dz = dd_df * (f0 * z0)[None, :], dd_dz * z[None, :]     # in the parameters p_f, p_z
     du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]     # (m, a, j)
     yn = np.eye(l)[tl[1]] * np.where(tl[0] == tl[1], 0.5, 1.0)[:, None] if mod.signed_background \
         else ln[:, tl[1]].T
