@@ -95,6 +95,9 @@ class OutputOnlyIdentification:
     unresolved_modes : tuple of UnresolvedMode
         Modes whose band holds a second shape of response, two modes taken for one
         (:mod:`oma.output_only.resolution`); any leaves the model untrusted.
+    undetermined_directions : tuple of int
+        Modes whose direction's standard error exceeds :data:`MAX_DIRECTION_SE_DEG`; any leaves the
+        model untrusted.
     directions_source : str
         Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
         ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_directions`, and
@@ -114,6 +117,7 @@ class OutputOnlyIdentification:
     lines_scaling: StiffnessScaling | None = field(default=None, repr=False)
     unexplained_peaks: tuple = ()
     unresolved_modes: tuple = ()
+    undetermined_directions: tuple = ()
     directions_source: str = "resonance band"
 
     @property
@@ -157,9 +161,9 @@ class OutputOnlyIdentification:
         # each entry of ``modes`` has the resonance band's direction; the model's are these
         out["directions_source"] = self.directions_source
         out["undetermined_directions"] = [
-            {"freq_hz": float(f), "direction_standard_error_deg": float(np.degrees(se))}
-            for f, se in zip(self.modes.freq_hz, self.modes.direction_se_rad)
-            if np.degrees(se) > MAX_DIRECTION_SE_DEG]
+            {"freq_hz": float(self.modes.freq_hz[k]),
+             "direction_standard_error_deg": float(np.degrees(self.modes.direction_se_rad[k]))}
+            for k in self.undetermined_directions]
         out["warnings"] = list(self.warnings)
         return out
 
@@ -401,6 +405,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                                     scaled_by=scaled_by, sample_rate_hz=fs,
                                     lines_scaling=lines_scaling if background is not None else None,
                                     unexplained_peaks=tuple(peaks), unresolved_modes=tuple(unresolved),
+                                    undetermined_directions=tuple(int(k) for k in loose),
                                     directions_source=directions_source)
 
 
