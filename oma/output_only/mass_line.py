@@ -54,9 +54,9 @@ with the background's level free to differ between channels (``s(f) A D A^H``, `
 :data:`CHANNEL_SCALE_SD`) and gives only directions (for modes along the channels ``D`` and the
 masses trade, so its levels are not identified); the lines are solved again with those. Measured
 (session 19, 20 records per case): the X stiffness beside Z 8.8-9.3 % -> 5.9-6.2 % at most on the
-paper's cell, the extra-mode case 12.0 -> 11.3 % (two records over 10 %, one before); the oblique structures' lowest modes as before
-(5.2 and 12.0 % at most), their third modes 12.2 % (was 32.0) and 6.7 % (11.8); the close pair's Z
-direction 10.5 -> 6.1 degrees off in the mean over 8 records.
+paper's cell, the extra-mode case 12.0 -> 11.3 % (two records over 10 %, one before); the oblique
+structures' lowest modes as before (5.2 and 12.0 % at most), their third modes 12.2 % (was 32.0)
+and 6.7 % (11.8); the close pair's Z direction 10.5 -> 6.1 degrees off in the mean over 8 records.
 
 Standard errors of the levels: the larger of the inverse Hessian's and the sandwich's (blocks' scores; White
 1982), as the refinement does (:func:`oma.output_only._ml_inference._information_se`).
@@ -69,6 +69,7 @@ cases (from the resonances: 6.5-7.5 %, 11.5-15.3 %).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, NamedTuple
 
 import numpy as np
 from scipy import optimize, special
@@ -200,15 +201,29 @@ def _curvature(per_block, posterior, p, prior_prec, h: float = 1e-4):
     return cov, cov @ (grads @ grads.T + np.diag(prior_prec)) @ cov
 
 
+class _Fit(NamedTuple):
+    """The mass lines' Whittle MAP at its optimum ``p`` (:func:`_fit`)."""
+
+    p: np.ndarray
+    per_block: Callable      # the blocks' negative log-likelihoods at a parameter vector (None: no fit)
+    posterior: Callable      # their sum with the priors'
+    prior_prec: np.ndarray
+    spectrum: Callable       # the model's spectral matrices (B, l, l)
+    directions: np.ndarray   # the turned unit directions at ``p`` (n, l)
+    channel_scales: np.ndarray  # the background's level per channel, the first's 1 (all 1 without them)
+    hat: np.ndarray          # the log level's basis over the blocks (B, n_s)
+    n_s: int
+    wr: np.ndarray           # the modes' angular frequencies
+    w_bins: np.ndarray
+    s_hat: np.ndarray        # the blocks' spectral matrices
+
+
 def _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_rad, derivative, lines_hz, band_hz,
          line_guard_hz, channel_scale_sd: float | None = None):
-    """The mass lines' Whittle MAP (module docstring): the optimum ``p`` and what is evaluated at it
-    (per-block likelihood, posterior, priors' precision, spectrum, turned directions, the log
-    level's basis, its size, the modes' angular frequencies, the bins and the blocks' spectral
-    matrices); None without modes, with too few blocks, or when the fit fails. ``channel_scale_sd``:
-    the background's level may differ between channels, ``s(f) A D A^H`` with ``D`` diagonal (the
-    first channel's 1), each other channel's log scale a parameter with this prior standard
-    deviation (:func:`mass_line_directions`)."""
+    """The mass lines' Whittle MAP (module docstring, :class:`_Fit`); None without modes, with too
+    few blocks, or when the fit fails. ``channel_scale_sd``: the background's level may differ
+    between channels, ``s(f) A D A^H`` with ``D`` diagonal (the first channel's 1), each other
+    channel's log scale a parameter with this prior standard deviation (:func:`mass_line_directions`)."""
     if derivative not in (1, 2):
         raise ValueError(f"the mass lines need velocities or accelerations (derivative 1 or 2), not {derivative!r}")
     fs = float(sample_rate_hz)
@@ -286,7 +301,8 @@ def _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_r
     p = optimize.minimize(objective, p0_, method="BFGS", options={"gtol": 1e-6, "maxiter": 500}).x
     if per_block(p) is None:
         return None
-    return p, per_block, posterior, prior_prec, spectrum, turned, hat, n_s, wr, w_bins, s_hat
+    scales = np.exp(np.concatenate([[0.0], p[n_s + n - 1 + n_t:]])) if n_c else np.ones(l)
+    return _Fit(p, per_block, posterior, prior_prec, spectrum, turned(p), scales, hat, n_s, wr, w_bins, s_hat)
 
 
 def mass_line_directions(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
@@ -300,9 +316,7 @@ def mass_line_directions(residuals, sample_rate_hz: float, freq_hz, damping, dir
                band_hz, line_guard_hz, channel_scale_sd=channel_scale_sd)
     if fit is None:
         return None
-    p, turned = fit[0], fit[5]
-    l = np.asarray(directions).shape[1]
-    return turned(p), np.exp(np.concatenate([[0.0], p[p.size - (l - 1):]]))
+    return fit.directions, fit.channel_scales
 
 
 def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directions, direction_se_rad, *,
@@ -337,21 +351,21 @@ def mass_line_levels(residuals, sample_rate_hz: float, freq_hz, damping, directi
                band_hz, line_guard_hz)
     if fit is None:
         return None
-    p, per_block, posterior, prior_prec, spectrum, turned, hat, n_s, wr, w_bins, s_hat = fit
+    p, n_s, wr = fit.p, fit.n_s, fit.wr
     n = wr.size
     # the levels log(s / m_r^2) (log s averaged over the blocks) are what the data fix: linear
     # combinations of the parameters; their errors from the curvature and the blocks' scores
     comb = np.zeros((n, p.size))
-    comb[:, :n_s] = hat.mean(axis=0)
+    comb[:, :n_s] = fit.hat.mean(axis=0)
     comb[1:, n_s:n_s + n - 1] = 2.0 * np.eye(n - 1)
-    curvature = _curvature(per_block, posterior, p, prior_prec)
+    curvature = _curvature(fit.per_block, fit.posterior, p, fit.prior_prec)
     if curvature is None:
         return None
     cov, sandwich = curvature
     var = np.fmax(np.einsum("ri,ij,rj->r", comb, cov, comb), np.einsum("ri,ij,rj->r", comb, sandwich, comb))
     # s / m_r^2 = s / (k_r / w_r^2)^2: the input level E|u . F|^2 / k_r^2 is that over w_r^4
     log_level = comb @ p - 4.0 * np.log(wr)
-    misfit = _deviance_ratio(spectrum(p), s_hat, BLOCK_BINS)
+    misfit = _deviance_ratio(fit.spectrum(p), fit.s_hat, BLOCK_BINS)
     return MassLineLevels(input_level=np.exp(log_level), input_level_log_se=np.sqrt(np.maximum(var, 0.0)),
-                          band_hz=(float(w_bins.min() / (2 * np.pi)), float(w_bins.max() / (2 * np.pi))),
-                          n_bins=int(w_bins.size), misfit=misfit, directions=turned(p))
+                          band_hz=(float(fit.w_bins.min() / (2 * np.pi)), float(fit.w_bins.max() / (2 * np.pi))),
+                          n_bins=int(fit.w_bins.size), misfit=misfit, directions=fit.directions)
