@@ -264,11 +264,9 @@ def test_a_mode_whose_direction_the_record_does_not_pin_leaves_the_model_untrust
     from dataclasses import replace as dc_replace
 
     import oma.output_only.identify as ident
+    from test_oma_output_only_spindle import OBLIQUE
 
-    c, s_ = np.cos(np.pi / 6), np.sin(np.pi / 6)
-    oblique = ModalModel([12.0, 26.0, 17.0], [0.04, 0.03, 0.05], [1.2e6, 2.5e6, 2.0e6],
-                         [[c, s_, 0], [-s_, c, 0], [0, 0, 1]])
-    rec = synthetic_record(oblique, duration_s=20.0, rng=10_000, spindle_rpm=2700.0, output="acceleration",
+    rec = synthetic_record(OBLIQUE, duration_s=20.0, rng=10_000, spindle_rpm=2700.0, output="acceleration",
                            runout_m=None)
     base = identify_output_only([rec])
     assert base.trusted and base.to_dict()["undetermined_directions"] == []

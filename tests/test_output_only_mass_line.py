@@ -11,6 +11,7 @@ from oma.modal import ModalModel
 from oma.output_only.identify import MAX_MASS_LINE_MISFIT, identify_output_only
 from oma.output_only.mass_line import mass_line_levels
 from oma.synthetic import PAPER_BACKGROUND_VARIANCE_N2, paper_like_model, synthetic_record
+from test_oma_output_only_spindle import OBLIQUE  # in-plane modes at 30 degrees, Z apart at 17 Hz
 from test_output_only_background_colour import coloured_record  # the coloured background's records
 
 TRUTH = paper_like_model()
@@ -115,9 +116,6 @@ def test_displacements_keep_the_resonances_levels():
     assert res.background is not None and res.background.source == "resonances"
 
 
-_C30, _S30 = np.cos(np.pi / 6), np.sin(np.pi / 6)
-OBLIQUE = ModalModel([12.0, 26.0, 17.0], [0.04, 0.03, 0.05], [1.2e6, 2.5e6, 2.0e6],
-                     [[_C30, _S30, 0], [-_S30, _C30, 0], [0, 0, 1]])
 
 
 @pytest.mark.parametrize("z_variance, fires", [(PAPER_BACKGROUND_VARIANCE_N2[2], False), (2500.0, True)])
@@ -149,12 +147,9 @@ def test_directions_with_the_background_free_between_channels_are_not_bent_by_it
     1.10-1.24 against the simulation's 1.20)."""
     from oma.output_only.mass_line import mass_line_directions
 
-    c, s_ = np.cos(np.pi / 6), np.sin(np.pi / 6)
-    oblique = ModalModel([12.0, 26.0, 17.0], [0.04, 0.03, 0.05], [1.2e6, 2.5e6, 2.0e6],
-                         [[c, s_, 0], [-s_, c, 0], [0, 0, 1]])
     iso_err, free_err, ratio = [], [], []
     for seed in range(3):
-        res = identify_output_only([synthetic_record(oblique, duration_s=20.0, rng=10_000 + seed, spindle_rpm=2700.0,
+        res = identify_output_only([synthetic_record(OBLIQUE, duration_s=20.0, rng=10_000 + seed, spindle_rpm=2700.0,
                                                      output="acceleration", runout_m=None)])
         m = res.modes
         args = ([h.residual for h in m.harmonics], FS, m.freq_hz, m.damping_ratio, m.directions, m.direction_se_rad)
@@ -163,7 +158,7 @@ def test_directions_with_the_background_free_between_channels_are_not_bent_by_it
         free, scales = mass_line_directions(*args, **kw)
         j = int(np.argmin(np.abs(m.freq_hz - 12.0)))
         for errs, u in ((iso_err, iso[j]), (free_err, free[j])):
-            errs.append(np.degrees(np.arccos(min(1.0, abs(u @ oblique.directions[0]) / np.linalg.norm(u)))))
+            errs.append(np.degrees(np.arccos(min(1.0, abs(u @ OBLIQUE.directions[0]) / np.linalg.norm(u)))))
         ratio.append(scales[1] / scales[0])
         assert res.directions_source == "mass lines"
         np.testing.assert_allclose(res.model.directions[j], free[j] / np.linalg.norm(free[j]), atol=1e-12)
