@@ -29,6 +29,9 @@ TRUTH = paper_like_model()
 #: Frequency tolerance of one 20 s record: 3 times the Whittle (Cramer-Rao) bound 0.63 % of a
 #: 10 Hz / 5 % mode in 20 s (computed in notes/oo.md), so that a correct estimator fails < 0.3 %.
 FREQ_TOL = 0.02
+#: The benchmark's extra case: the paper-like cell and a 70 Hz mode along (1, 1, 0).
+EXTRA_TRUTH = ModalModel([10.5, 24.8, 10.0, 70.0], [0.05, 0.04, 0.05, 0.03], [1.5e6, 3.0e6, 2.0e6, 4.0e6],
+                         [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]])
 
 
 def _record(seed, rpm=2700.0, harmonics=True, duration_s=20.0):
@@ -504,8 +507,7 @@ def test_extra_mode_case_finds_all_four_modes_and_drops_unsupported_candidates()
     candidate handed to the refinement is dropped by the likelihood check."""
     from oma.output_only.ml import refine_modes_ml
 
-    model = ModalModel([10.5, 24.8, 10.0, 70.0], [0.05, 0.04, 0.05, 0.03], [1.5e6, 3.0e6, 2.0e6, 4.0e6],
-                       [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]])
+    model = EXTRA_TRUTH
     # the benchmark's second record (its first, rng 10_000, is its worst: X at -2.04 %, reported)
     rec = synthetic_record(model, duration_s=20.0, rng=10_001, spindle_rpm=1350.0, output="acceleration",
                            runout_m=None)
@@ -642,21 +644,14 @@ def test_the_residual_scan_is_quiet_under_its_model_and_finds_a_missing_mode():
         assert abs(uc @ np.array([0.8, 0.6, 0.0])) > 0.99
 
 
-@pytest.mark.parametrize("case", ["extra", "damped"])
-def test_a_mode_ssi_misses_is_found_by_the_refinements_scan(case):
-    """Two benchmark records where no SSI cluster forms for a true mode (session 12: the extra
-    case's 10.5 Hz X mode beside Z, record 8; the damped structure's 21 Hz mode, between the
-    groups of the 9 and 33 Hz modes, record 8). The scan of what the refined groups leave
-    unexplained proposes it, the group refitted with it (on a band widened to hold it) gains far
-    more than the mode's BIC penalty: exactly the true modes, each within 2 % in frequency and
+def test_a_mode_ssi_misses_is_found_by_the_refinements_scan():
+    """A benchmark record of the extra case where no SSI cluster forms for the 10.5 Hz X mode
+    beside Z (record 8, session 12; record 16 is another, its Z direction 31 degrees off). The scan of what the refined groups
+    leave unexplained proposes it, the group refitted with it (on a band widened to hold it) gains
+    far more than the mode's BIC penalty: exactly the true modes, each within 2 % in frequency and
     0.9 in direction, and the warning says which mode came from the scan."""
-    s45 = np.sqrt(0.5)
-    truth, rpm = {
-        "extra": (ModalModel([10.5, 24.8, 10.0, 70.0], [0.05, 0.04, 0.05, 0.03], [1.5e6, 3.0e6, 2.0e6, 4.0e6],
-                             [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0]]), 1350.0),
-        "damped": (ModalModel([9.0, 21.0, 33.0], [0.08, 0.06, 0.05], [1.0e6, 2.0e6, 4.0e6],
-                              [[s45, s45, 0], [-s45, s45, 0], [0, 0, 1]]), 2700.0)}[case]
-    rec = synthetic_record(truth, duration_s=20.0, rng=10_008, spindle_rpm=rpm, output="acceleration", runout_m=None)
+    truth = EXTRA_TRUTH
+    rec = synthetic_record(truth, duration_s=20.0, rng=10_008, spindle_rpm=1350.0, output="acceleration", runout_m=None)
     m = identify_output_only([rec]).modes
     assert m.n_modes == truth.n_modes and np.all(np.diff(m.freq_hz) > 0)
     for k in range(truth.n_modes):
@@ -666,5 +661,21 @@ def test_a_mode_ssi_misses_is_found_by_the_refinements_scan(case):
         assert abs(m.directions[j] @ truth.directions[k]) > 0.9
     scanned = [w for w in m.warnings if "not by SSI" in w]
     assert len(scanned) == 1
-    missed = 10.5 if case == "extra" else 21.0
-    assert abs(float(scanned[0].split()[2]) / missed - 1) < FREQ_TOL   # 'mode at 10.38 Hz found ...'
+    assert abs(float(scanned[0].split()[2]) / 10.5 - 1) < FREQ_TOL   # 'mode at 10.38 Hz found ...'
+
+
+def test_a_mode_neither_ssi_nor_the_scan_finds_leaves_the_model_untrusted_and_named():
+    """The damped structure's record 8 (9 / 21 / 33 Hz at 8 / 6 / 5 %, 45 degrees in XY): no SSI
+    cluster forms for the 21 Hz mode, between the groups of the 9 and 33 Hz modes; its peak stands
+    under the seeding ratio and the scan's candidate, proposed at the 33 Hz group's band edge, does
+    not gain its penalty (until session 20's band-limited simulator the scan found it on this
+    record; should a later change find it, this record no longer tests the flag and another must).
+    The model must not be trusted, and a warning must name the peak at 21 Hz."""
+    s45 = np.sqrt(0.5)
+    truth = ModalModel([9.0, 21.0, 33.0], [0.08, 0.06, 0.05], [1.0e6, 2.0e6, 4.0e6],
+                       [[s45, s45, 0], [-s45, s45, 0], [0, 0, 1]])
+    rec = synthetic_record(truth, duration_s=20.0, rng=10_008, spindle_rpm=2700.0, output="acceleration", runout_m=None)
+    res = identify_output_only([rec])
+    assert not np.any(np.abs(res.modes.freq_hz / 21.0 - 1) < FREQ_TOL)   # the case this test is about
+    assert not res.trusted
+    assert any(p.freq_hz == pytest.approx(21.0, rel=FREQ_TOL) for p in res.unexplained_peaks)

@@ -20,8 +20,8 @@ from oma.output_only.background import ANISOTROPY_LOG_SD, background_level, scal
 from oma.output_only.identify import identify_output_only
 from oma.output_only.scaling import StiffnessScaling
 from oma.record import Channel, Record
-from oma.synthetic import (PAPER_BACKGROUND_VARIANCE_N2, _motion_derivative, band_limited_milling_force,
-                           paper_like_cut, paper_like_material, paper_like_model, paper_like_tool, simulate_response)
+from oma.synthetic import (PAPER_BACKGROUND_VARIANCE_N2, band_limited_milling_force, band_limited_response,
+                           paper_like_cut, paper_like_material, paper_like_model, paper_like_tool)
 
 TRUTH = paper_like_model()
 FS = 1000.0
@@ -66,8 +66,8 @@ def coloured_record(seed: int, exponent: float = 1.0, output: str = "displacemen
     """20 s of the paper-like cell at 2700 rpm (milling lines, no runout) under a coloured
     background force: the paper's variances per axis, each shaped in the frequency domain to the
     PSD ``sigma^2 / fs * (F_REF_HZ / f)^exponent`` (f floored at 0.5 Hz; 1 pink, 2 red, -1 blue),
-    from rest after a 3 s preroll; ``output`` displacement (:func:`oma.synthetic.simulate_response`)
-    or acceleration (its exact derivative)."""
+    from rest after a 3 s preroll; ``output`` displacement or acceleration
+    (:func:`oma.synthetic.band_limited_response`)."""
     rng = np.random.default_rng(seed)
     tool, material = paper_like_tool(), paper_like_material()
     cut = paper_like_cut(2700.0)
@@ -78,10 +78,8 @@ def coloured_record(seed: int, exponent: float = 1.0, output: str = "displacemen
     shape = (F_REF_HZ / np.maximum(freq, 0.5)) ** (exponent / 2)
     noise = np.fft.irfft(np.fft.rfft(rng.standard_normal((3, t.size)), axis=1) * shape, n=t.size, axis=1)
     force += np.sqrt(np.asarray(PAPER_BACKGROUND_VARIANCE_N2))[:, None] * noise
-    if output == "displacement":
-        motion, unit = simulate_response(TRUTH, force, FS)[:, n_pre:], "m"
-    else:
-        motion, unit = _motion_derivative(TRUTH, force, FS, order=2)[:, n_pre:], "m/s2"
+    unit = {"displacement": "m", "acceleration": "m/s2"}[output]
+    motion = band_limited_response(TRUTH, force, FS, derivative=2 if output == "acceleration" else 0)[:, n_pre:]
     channels = tuple(Channel(a.lower(), output, a, unit) for a in ("X", "Y", "Z"))
     return Record(sample_rate_hz=FS, channels=channels, data=motion, tool=tool, cut=cut, material=material,
                   name=f"coloured-{exponent}-{seed}")
