@@ -334,9 +334,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             # the least supported mode, if under its penalty, is dropped (two candidates for one
             # peak each look redundant while the other is there: only one of them goes). Of several
             # such (and duplicates, below), the one whose group refitted without it scores best
-            # (BIC) while keeping its modes in their bands: two candidates for one 70 Hz peak in a near tie (gains 4.6 and
-            # 4.7 against 16.4), dropping the weaker left the other, refitted from its own start
-            # at 82 Hz, stuck there (a mode reported where there is none)
+            # (BIC) while keeping its modes in their bands: two candidates for one 70 Hz peak in a
+            # near tie (gains 4.6 and 4.7 against 16.4), dropping the weaker left the other,
+            # refitted from its own start at 82 Hz, stuck there (a mode reported where there is none)
             margin = np.array([evidence[int(k)][0] - evidence[int(k)][1] if int(k) in evidence else np.inf
                                for k in g])
             # a mode the fit moved out of its band onto another's start is a second candidate for
