@@ -390,7 +390,8 @@ def synthetic_record(
     The true force is the periodic milling force (:func:`milling_force`) plus independent Gaussian
     white noise of variance ``background_variance_N2`` per axis (band-limited to the sampling
     rate). The structure responds to the true force (:func:`band_limited_response`, started
-    ``preroll_s`` earlier so that the record is stationary). The recorded force adds sensor noise
+    ``preroll_s`` earlier so that the record is stationary, the force going on for
+    :data:`POSTROLL_S` after it). The recorded force adds sensor noise
     of ``sensors.force_noise_variance_N2`` and is rounded to ``sensors.force_resolution_N``; the
     recorded displacement is the response plus a random absolute position, rounded to
     ``sensors.displacement_resolution_m`` (the tracker grid does not line up with the tool).
@@ -450,7 +451,7 @@ def synthetic_record(
     # the force goes on after the record (a record is a window of a longer cut): the band-limited
     # response to a force that stopped at the record's end would ring before it
     n_post = int(round(POSTROLL_S * fs))
-    t = (np.arange(n_pre + n) - n_pre) / fs
+    t = (np.arange(n_pre + n + n_post) - n_pre) / fs
     force = np.zeros((3, t.size))
     if harmonics:
         if material.cutting_coefficients is None:
@@ -459,17 +460,12 @@ def synthetic_record(
             tool, true_cut, material.cutting_coefficients, t, 0.5 * fs, runout_m=runout_m
         )
     sigma = np.sqrt(np.asarray(background_variance_N2, dtype=float).reshape(3))
-    force += sigma[:, None] * rng.standard_normal((3, t.size))
-    # the force after the record from a stream of its own (the generator jumped ahead), so that the
+    noise = rng.standard_normal((3, n_pre + n))
+    # the noise after the record from a stream of its own (the generator jumped ahead), so that the
     # record's draws do not depend on it (a bit generator that cannot jump gives a seed instead)
     jumped = getattr(rng.bit_generator, "jumped", None)
     after = np.random.Generator(jumped()) if jumped is not None else np.random.default_rng(rng.integers(2**63))
-    t_post = (n + np.arange(n_post)) / fs
-    force_post = sigma[:, None] * after.standard_normal((3, n_post))
-    if harmonics:
-        force_post += band_limited_milling_force(tool, true_cut, material.cutting_coefficients, t_post, 0.5 * fs,
-                                                 runout_m=runout_m)
-    force = np.hstack([force, force_post])
+    force += sigma[:, None] * np.hstack([noise, after.standard_normal((3, n_post))])
     order = ("displacement", "velocity", "acceleration").index(output)
     motion = band_limited_response(model, force, fs, derivative=order)[:, n_pre:n_pre + n]
     force = force[:, n_pre:n_pre + n]
