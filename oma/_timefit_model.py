@@ -10,22 +10,27 @@ import numpy as np
 from scipy import signal as sps
 
 from .harmonics import fit_harmonic_signal, harmonic_basis
-from .synthetic import mode_filter
+from .synthetic import hold_equalised, mode_filter
 
 __all__ = ["modal_response"]
 
 
-def modal_response(p, f0, z0, fs, derivative=0):
-    """Response of a unit-mass mode to sampled forces ``p`` (rows), first-order hold.
+def modal_response(p, f0, z0, fs, derivative=0, held=None):
+    """Response of a unit-mass mode to the measured (band-limited) forces ``p`` (rows).
 
-    ``derivative`` 0, 1, 2: displacement, velocity, acceleration. The acceleration follows from the
-    equation of motion, ``q'' = p - 2 zeta w q' - w^2 q``, exact like the other two.
+    The mode is discretised with a first-order hold (:func:`oma.synthetic.mode_filter`) and driven
+    by the samples equalised for it (:func:`oma.synthetic.hold_equalised`; ``held``, when given, is
+    that of ``p``): without, a mode at 0.15 fs came out 6.6 % soft from a record of a continuous
+    structure (session 20). ``derivative`` 0, 1, 2: displacement, velocity, acceleration. The
+    acceleration follows from the equation of motion, ``q'' = p - 2 zeta w q' - w^2 q``, its direct
+    term the force itself.
     """
+    held = hold_equalised(p) if held is None else held
     if derivative < 2:
-        return sps.lfilter(*mode_filter(f0, z0, fs, derivative=derivative), p, axis=-1)
+        return sps.lfilter(*mode_filter(f0, z0, fs, derivative=derivative), held, axis=-1)
     w = 2.0 * np.pi * f0
-    q = sps.lfilter(*mode_filter(f0, z0, fs), p, axis=-1)
-    qd = sps.lfilter(*mode_filter(f0, z0, fs, derivative=1), p, axis=-1)
+    q = sps.lfilter(*mode_filter(f0, z0, fs), held, axis=-1)
+    qd = sps.lfilter(*mode_filter(f0, z0, fs, derivative=1), held, axis=-1)
     return p - 2.0 * z0 * w * qd - w * w * q
 
 
@@ -62,7 +67,7 @@ class _Problem:
         """Columns of one mode: its forced responses ``(n, n_in)`` and free responses ``(n, 2)``
         (zero on the samples left out of the fit)."""
         p, t = rec["p"], rec["t"]
-        forced = modal_response(p, f0, z0, self.fs, self.derivative).T
+        forced = modal_response(p, f0, z0, self.fs, self.derivative, held=rec["p_held"]).T
         w = 2 * np.pi * f0
         wd = w * np.sqrt(max(1 - z0 * z0, 1e-12))
         env = np.exp(-z0 * w * t)
@@ -76,7 +81,7 @@ class _Problem:
         p, t = rec["p"], rec["t"]
         shared = []
         for f0, z0 in zip(fn, zeta):
-            shared.append(modal_response(p, f0, z0, self.fs, self.derivative))  # (n_in, n)
+            shared.append(modal_response(p, f0, z0, self.fs, self.derivative, held=rec["p_held"]))  # (n_in, n)
         shared = np.concatenate(shared, axis=0) if shared else np.zeros((0, t.size))
         if self.residual:
             shared = np.concatenate([shared, p], axis=0)
@@ -239,7 +244,7 @@ def _prepare(signals, harmonics, inputs, outputs, derivative=0, keep=None):
         if w is not None:
             nuis, y = nuis * w[:, None], y * w
         q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
-        recs.append({"p": p, "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t, "nuis": nuis, "q_nuis": q_nuis,
+        recs.append({"p": p, "p_held": hold_equalised(p), "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t, "nuis": nuis, "q_nuis": q_nuis,
                      "fs": fs, "outputs": list(outputs), "inputs": list(inputs), "step": s.quantisation_step_m,
                      "derivative": derivative, "w": w})
     return recs

@@ -29,6 +29,7 @@ G. F. Franklin, J. D. Powell, M. Workman, Digital Control of Dynamic Systems, 3r
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Literal, Sequence
 
@@ -41,6 +42,7 @@ from .record import AXES, Channel, Record
 
 __all__ = [
     "mode_filter",
+    "hold_equalised",
     "simulate_response",
     "band_limited_response",
     "paper_like_model",
@@ -114,6 +116,43 @@ def mode_filter(natural_frequency_hz: float, damping_ratio: float, sample_rate_h
         k0 * d2 + dd,
     ]) / t
     return num, np.array([1.0, d1, d2])
+
+
+#: Taps on each side of :func:`hold_equalised`'s filter: its response times the hold's
+#: ``sinc^2(f / fs)`` is 1 within 2.3e-5 up to 0.2 fs, 3.9e-5 up to 0.4 fs (8 taps: 8e-4; 32: 5e-8).
+HOLD_EQUALISER_HALF_TAPS = 16
+
+
+@functools.lru_cache(maxsize=4)
+def _hold_equaliser(half: int) -> np.ndarray:
+    """The symmetric FIR (``2 half + 1`` taps) whose response is ``1 / sinc^2(f / fs)``, least
+    squares over 0-0.45 fs (above, an acquisition's anti-alias filter leaves nothing)."""
+    nu = np.linspace(0.0, 0.45, 40 * half + 1)
+    basis = np.column_stack([np.ones_like(nu)] + [2.0 * np.cos(2.0 * np.pi * k * nu) for k in range(1, half + 1)])
+    c = np.linalg.lstsq(basis, 1.0 / np.sinc(nu) ** 2, rcond=None)[0]
+    taps = np.concatenate([c[:0:-1], c])
+    taps.setflags(write=False)
+    return taps
+
+
+def hold_equalised(force, *, axis: int = -1) -> np.ndarray:
+    """The samples whose first-order-hold interpolant drives a filter like the band-limited signal
+    through ``force`` does.
+
+    A mode discretised with a hold (:func:`mode_filter`) responds to a sampled force as the
+    continuous mode to its piecewise-linear interpolant, whose spectrum is the band-limited
+    signal's times ``sinc^2(f / fs)`` (-2.6 % at 0.09 fs, -6.6 % at 0.15 fs); a measured force is the
+    band-limited one (an anti-aliased acquisition's). Filtering the samples by the inverse
+    (:data:`HOLD_EQUALISER_HALF_TAPS`, symmetric, so no delay) removes that: the held mode's line
+    is then the continuous one's within 4e-3 (complex) from 0.8 to 1.1 times modes up to 0.2 fs,
+    and 6e-3 at the resonance of a mode at 0.3 fs (the hold alone: 26 % short there); what is left
+    is the hold's aliases, off resonance near Nyquist (tested in ``tests/test_oma_timefit.py``). The
+    record's ends are continued by reflection (the first and last 16 samples approximate).
+    """
+    from scipy.ndimage import convolve1d
+
+    return convolve1d(np.asarray(force, dtype=float), _hold_equaliser(HOLD_EQUALISER_HALF_TAPS), axis=axis,
+                      mode="reflect")
 
 
 def _mode_filter_c2d(w, z, t, derivative):

@@ -18,7 +18,9 @@ measured force minus its fitted harmonics, mean and trend)::
              + sum_r e^{-zeta_r w_r t}(c_or cos w_dr t + d_or sin w_dr t)    (initial state)
              + b_o0 + b_o1 t + sum_h (a_oh cos 2 pi f_h t + s_oh sin 2 pi f_h t)  (static and forced part)
 
-``g_r`` the unit-mass response of mode ``r`` (:func:`oma.synthetic.mode_filter`, first-order hold).
+``g_r`` the unit-mass response of mode ``r`` (:func:`oma.synthetic.mode_filter`, first-order hold,
+driven by ``p`` equalised for the hold, :func:`oma.synthetic.hold_equalised`: the measured force is
+band-limited, and the hold alone answers ``sinc^2(f / fs)`` short).
 Natural frequencies and damping ratios are the nonlinear unknowns; everything else is linear and
 solved at each step (variable projection, Golub & Pereyra 2003). The residues ``A_r`` (3 x 3 per
 mode) are then made reciprocal and rank one, ``u_r u_r^T / m_r``, which gives the

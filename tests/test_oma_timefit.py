@@ -7,6 +7,7 @@ import pytest
 from scipy import signal as sps
 
 from oma.identify import identify
+from oma.modal import ModalModel
 from oma.quantised import input_noise_scale
 from oma.timefit import modal_response
 from oma.signals import prepare_record
@@ -98,3 +99,44 @@ def test_modal_response_derivatives_are_consistent():
     da = np.gradient(v, 1 / fs)[10:-10]
     np.testing.assert_allclose(dv, v[10:-10], atol=2e-3 * np.abs(v).max())
     np.testing.assert_allclose(da, acc[10:-10], atol=2e-3 * np.abs(acc).max())
+
+
+def test_a_mode_far_up_the_band_keeps_its_stiffness_from_a_band_limited_record():
+    """The record of a continuous structure (:func:`oma.synthetic.band_limited_response`) with its X
+    mode at 150 Hz, 0.15 fs: a first-order-hold model answers ``sinc^2(0.15) = 0.928`` short there
+    and took the stiffness 6.6 % soft (4 records, session 20). With the force equalised for the
+    hold (:func:`oma.synthetic.hold_equalised`) the force-based default finds it within 3 % (the
+    scatter over 4 records was 0.4 %), and the frequency within 0.2 %."""
+    model = ModalModel([150.0, 24.8, 10.0], [0.03, 0.04, 0.05], [1.5e6, 3.0e6, 2.0e6], np.eye(3))
+    rec = synthetic_record(model, duration_s=5.0, rng=1, output="acceleration", spindle_rpm=2700.0)
+    m = identify([rec]).model
+    j = int(np.argmin(np.abs(m.natural_frequency_hz - 150.0)))
+    assert m.natural_frequency_hz[j] == pytest.approx(150.0, rel=2e-3)
+    assert m.stiffness_N_m[j] == pytest.approx(1.5e6, rel=0.03)
+
+
+@pytest.mark.parametrize("derivative", [0, 1, 2])
+def test_the_held_mode_driven_by_equalised_samples_answers_as_the_continuous_mode(derivative):
+    """A sampled sinusoid (the band-limited force) through :func:`oma.timefit.modal_response`: its
+    steady line is the continuous unit-mass mode's ``(i w)^d / (w_n^2 - w^2 + 2 i zeta w_n w)``
+    within 4e-3 (complex) at 0.8, 1.0 and 1.1 times modes up to 0.2 fs (measured at most 3.5e-3)
+    and 6e-3 at the resonance of a mode at 0.3 fs (measured 2.8-5.3e-3; off resonance there, and
+    at 0.4 fs, the hold's aliases leave 1-18 %). The same held filter driven by the raw samples is
+    26 % short at that resonance."""
+    fs, n = 1000.0, 6000
+    t = np.arange(n) / fs
+    fit = slice(3000, 5000)
+
+    def error(fm, f, equalise=True):
+        p = np.cos(2 * np.pi * f * t)[None, :]
+        y = modal_response(p, fm, 0.03, fs, derivative, held=None if equalise else p)[0]
+        basis = np.column_stack([np.cos(2 * np.pi * f * t[fit]), np.sin(2 * np.pi * f * t[fit])])
+        c = np.linalg.lstsq(basis, y[fit], rcond=None)[0]
+        w, wn = 2 * np.pi * f, 2 * np.pi * fm
+        return abs((c[0] - 1j * c[1]) * (wn ** 2 - w ** 2 + 2j * 0.03 * wn * w) / (1j * w) ** derivative - 1)
+
+    for fm in (100.0, 200.0):
+        for r in (0.8, 1.0, 1.1):
+            assert error(fm, r * fm) < 4e-3, (fm, r)
+    assert error(300.0, 300.0) < 6e-3
+    assert error(300.0, 300.0, equalise=False) > 0.2
