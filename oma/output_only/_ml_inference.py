@@ -144,15 +144,19 @@ def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0,
     return best
 
 
-def _mode_gain(fits, fit, j: int, x):
+def _mode_gain(fits, fit, j: int, x, *, refit: dict | None = None):
     """The decrease of the group's negative log-likelihood that its mode ``j`` brings: the group
     refitted without it on the same bins, both with the richest tail model fitted (coherent residual
     terms: under a poorer one a spurious mode can stand in for the coherent tails). The refit starts
     from the fit less the mode's term and runs :data:`EVIDENCE_ITER` steps: the gain errs on the
-    high side. None when the refit fails."""
+    high side. None when the refit fails. ``refit``, when given, receives the refit's frequencies
+    and damping of the other modes (``'freq_hz'``, ``'damping'``)."""
     ref = next((ft for ft in fits if ft[5].q and ft[5].coherent), fit)
     mod0, p0 = _without_mode(ref[4], ref[5], j)
-    fun0 = _scoring(p0, mod0, x, max_iter=EVIDENCE_ITER, warm=0)[1]
+    p1, fun0 = _scoring(p0, mod0, x, max_iter=EVIDENCE_ITER, warm=0)[:2]
+    if refit is not None and np.all(np.isfinite(p1)):
+        params = _unpack(p1, mod0)
+        refit.update(freq_hz=np.asarray(params[0]), damping=np.asarray(params[1]))
     return float(fun0 - ref[3]) if np.isfinite(fun0) and fun0 < 1e30 else None
 
 

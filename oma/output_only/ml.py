@@ -162,9 +162,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         decrease of the group's negative log-likelihood that the mode brings (the group refitted
         without it on the same bins, both with the richest tail model fitted) and the BIC penalty
         of the mode's parameters, ``0.5 (l + 2) log(n_bins)`` (Schwarz 1978): the mode is
-        supported when the gain exceeds the penalty; an unsupported mode is dropped and its group
-        refitted without it (``evidence['dropped']``: the mask of the dropped modes;
-        ``evidence['added']``: the mask of the modes the scan added).
+        supported when the gain exceeds the penalty; an unsupported mode, or one the fit moves out
+        of its band onto another's start (a duplicate), is dropped and its group refitted without
+        it (``evidence['dropped']``: the mask of the dropped modes; ``evidence['duplicate']``: of
+        those dropped as duplicates; ``evidence['added']``: the mask of the modes the scan added).
     segments : sequence of (record, start, stop), optional
         Delete-one-segment jackknife: per segment, the record's samples ``start:stop`` zeroed
         (the rest scaled to the same power) and each group's model refitted by Fisher scoring
@@ -268,6 +269,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     kinds = (False, "known") if residual_terms == "auto" else \
         tuple(residual_terms) if isinstance(residual_terms, (tuple, list)) else (residual_terms,)
     dropped = np.zeros(f0.size, dtype=bool)
+    duplicated = np.zeros(f0.size, dtype=bool)
     added = np.zeros(f0.size, dtype=bool)
 
     def fit_chain(g, w, x, ug):
@@ -325,44 +327,41 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             # the mode's own parameters (frequency, damping, direction, input variance)
             ref_fit = next((ft for ft in fits if ft[5].q and ft[5].coherent), fit)
             weak = np.zeros(g.size, dtype=bool)
+            without = [{} for _ in g]   # each mode's evidence refit: the group's others without it
             for j, k in enumerate(g):
                 if ref_fit[5].m == 1 and not ref_fit[5].q and not ref_fit[5].noise:
                     continue
-                gain = _mode_gain(fits, fit, j, x)
+                gain = _mode_gain(fits, fit, j, x, refit=without[j])
                 if gain is not None:
                     evidence[int(k)] = (gain, 0.5 * (l + 2) * np.log(w.size))
-            # the least supported mode, if under its penalty, is dropped (two candidates for one
-            # peak each look redundant while the other is there: only one of them goes). Of several
-            # such (and duplicates, below), the one whose group refitted without it scores best
-            # (BIC) while keeping its modes in their bands: two candidates for one 70 Hz peak in a
-            # near tie (gains 4.6 and 4.7 against 16.4), dropping the weaker left the other,
-            # refitted from its own start at 82 Hz, stuck there (a mode reported where there is none)
+            # one mode goes, refitted without (the group's one refit): a mode the fit moved out of
+            # its band onto another's start, whose group refits without it keeping the others in
+            # theirs, is a second candidate for that mode's peak whatever it gains there (two modes
+            # on one peak fit its small misfits: session 20, a candidate started at 82 Hz moved
+            # onto the 70 Hz mode's peak gained 61 against 16, and the group went unrefined);
+            # else the least supported under its penalty (two candidates for one peak each look
+            # redundant while the other is there), of those whose group refits without it keeping
+            # the others in their bands if any (dropping the weaker of two candidates for one
+            # 70 Hz peak, gains 4.6 and 4.7 against 16.4, had left the other refitted from 82 Hz
+            # stuck there). "Refits": the evidence's refit, from the fit less the mode
             margin = np.array([evidence[int(k)][0] - evidence[int(k)][1] if int(k) in evidence else np.inf
                                for k in g])
-            # a mode the fit moved out of its band onto another's start is a second candidate for
-            # that mode's peak, whatever it gains there (two modes on one peak fit its small misfits:
-            # session 20, a candidate started at 82 Hz moved onto the 70 Hz mode's peak, gaining 61
-            # against 16, and the group went unrefined)
-            f_fit = fit[0]
-            duplicate = np.array([abs(f_fit[j] - f0[k]) > hw[k] / 2
-                                  and np.any(np.abs(f_fit[j] - f0[np.delete(g, j)]) < hw[np.delete(g, j)] / 2)
-                                  for j, k in enumerate(g)])
-            reduced, best = None, np.inf
-            for j in np.argsort(np.where(duplicate, -np.inf, margin), kind="stable"):
-                if not (margin[j] < 0 or duplicate[j]):
-                    break
+            others = [np.delete(g, j) for j in range(g.size)]
+            refits_in_bands = np.array([
+                "freq_hz" in without[j] and _within_bands((without[j]["freq_hz"], without[j]["damping"]),
+                                                          others[j], f0, hw) for j in range(g.size)])
+            moved = np.abs(fit[0] - f0[g]) > hw[g] / 2
+            duplicate = moved & refits_in_bands & np.array(
+                [np.any(np.abs(fit[0][j] - f0[others[j]]) < hw[others[j]] / 2) for j in range(g.size)])
+            weak_in_bands = (margin < 0) & refits_in_bands
+            candidates = duplicate if duplicate.any() else weak_in_bands if weak_in_bands.any() else margin < 0
+            if candidates.any():
+                j = int(np.flatnonzero(candidates)[np.argmin(margin[candidates])])
                 keep = np.arange(g.size) != j
-                chain_j = fit_chain(g[keep], w, x, ug[:, keep]) if keep.any() else None
-                if reduced is None:
-                    reduced = (j, chain_j)   # the weakest: dropped if no other leaves a valid fit
-                if chain_j is not None and _within_bands(chain_j[1], g[keep], f0, hw):
-                    score = chain_j[1][3] + 0.5 * _n_params(chain_j[1][5]) * np.log(w.size)
-                    if score < best:
-                        reduced, best = (j, chain_j), score
-            if reduced is not None:
-                j, chain = reduced
+                chain = fit_chain(g[keep], w, x, ug[:, keep]) if keep.any() else None
                 weak[j] = True
                 dropped[g[weak]] = True
+                duplicated[g[weak]] = duplicate[j]
                 g, ug = g[~weak], ug[:, ~weak]
                 if chain is None:
                     continue
@@ -403,6 +402,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])
                     u_out = np.column_stack([u_out, u0[:, -1]])
                     ok, dropped, added = np.append(ok, False), np.append(dropped, False), np.append(added, True)
+                    duplicated = np.append(duplicated, False)
                     se = np.column_stack([se, np.full(4, np.nan)])
                     level = np.append(level, np.nan)
                     beta, beta_se = np.append(beta, np.nan), np.append(beta_se, np.nan)
@@ -443,6 +443,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     reps[2, s_i, g] = np.arccos(np.minimum(cosine, 1.0))
     if evidence is not None:
         evidence["dropped"] = dropped
+        evidence["duplicate"] = duplicated
         evidence["added"] = added
     if slopes is not None:
         slopes.update(beta=beta, beta_se=beta_se)

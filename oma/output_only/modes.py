@@ -389,13 +389,16 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                 gain = f" (likelihood gain {ev[k][0]:.1f} against penalty {ev[k][1]:.1f})" if ev else ""
                 warnings.append(f"mode at {f_hat[k]:.2f} Hz found by the refinement's scan of what its group's "
                                 f"model left unexplained, not by SSI{gain}")
-        # a mode whose likelihood gain is under its BIC penalty is not supported by the data: the
-        # refinement dropped it and refitted its group without it
+        # a mode whose likelihood gain is under its BIC penalty is not supported by the data, and
+        # one the fit moved onto another's peak is a second candidate for it: the refinement
+        # dropped it and refitted its group without it
         weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
         for k in np.flatnonzero(weak):
             what = "stable SSI cluster" if support[k] > 0 else "seeded peak"
-            warnings.append(f"{what} at {f_hat[k]:.2f} Hz not kept: the spectrum's likelihood gains "
-                            f"{ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
+            why = ("the refinement moved it out of its band onto another mode's peak (a second candidate for that "
+                   "mode)" if ev["duplicate"][k] else
+                   f"the spectrum's likelihood gains {ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
+            warnings.append(f"{what} at {f_hat[k]:.2f} Hz not kept: {why}")
         keep_ = ~weak
         out = (out[0][keep_], out[1][keep_], out[2][:, keep_], out[3][keep_],
                None if out[4] is None else tuple(a[keep_] for a in out[4]), tuple(a[keep_] for a in out[5]))
