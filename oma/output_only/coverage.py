@@ -48,6 +48,10 @@ class UnexplainedPeak:
     freq_hz: float
     ratio: float
     nearest_mode_hz: float
+    #: Width of the peak at half its power in the channel's Welch spectrum, Hz (linear between
+    #: bins; the Hann window's own 1.44 bins included); NaN when the peak does not fall to half
+    #: within the prominence window.
+    half_power_width_hz: float = float("nan")
 
     def describe(self, axis_names=("X", "Y", "Z")) -> str:
         name = axis_names[self.channel] if self.channel < len(axis_names) else f"channel {self.channel}"
@@ -132,6 +136,23 @@ def unexplained_peaks(residuals, sample_rate_hz: float, band_hz, freq_hz, dampin
         if cand.size:
             k = cand[np.argmax(p[cand])]
             nearest = float(modes_f[np.argmin(np.abs(modes_f - f[k]))]) if modes_f.size else float("nan")
+            h = max(int(round(0.1 * f[k] / df)), 4)
             out.append(UnexplainedPeak(channel=axes[ch], freq_hz=float(f[k]), ratio=float(p[k] / floor),
-                                       nearest_mode_hz=nearest))
+                                       nearest_mode_hz=nearest, half_power_width_hz=_half_power_width(f, p, k, h)))
     return out
+
+
+def _half_power_width(f, p, k: int, reach: int) -> float:
+    """Width of the peak of ``p`` at bin ``k`` where it falls to half its power on each side
+    (linear between bins), looking at most ``reach`` bins away; NaN if it does not fall so far."""
+    half = 0.5 * p[k]
+    edges = []
+    for step in (-1, 1):
+        i = k
+        while 0 <= i + step < p.size and abs(i + step - k) <= reach and p[i + step] > half:
+            i += step
+        j = i + step
+        if not (0 <= j < p.size and abs(j - k) <= reach):
+            return float("nan")
+        edges.append(f[i] + (f[j] - f[i]) * (p[i] - half) / (p[i] - p[j]))
+    return float(edges[1] - edges[0])

@@ -38,7 +38,12 @@ __all__ = ["OutputOnlyModes", "output_only_modes", "real_direction"]
 #: See ``ml_refine`` in :func:`output_only_modes`.
 ML_MAX_SHIFT = 2.0
 #: Starting damping ratio of a mode seeded from a residual spectral peak (``seed_peaks``): the
-#: middle of robot modes' 2-10 % on a log scale; the refinement fits it.
+#: middle of robot modes' 2-10 % on a log scale; the refinement fits it. A peak narrower than that
+#: starts at its own half-power width, ``width / (2 f)``, at least :data:`SEED_MIN_DAMPING`
+#: (session 20: on real Hurco files tones at 277 and 543 Hz seeded at 4.5 % made groups 150-290 Hz
+#: wide, 3-5 s of CPU, and refined to 0.1-0.3 % anyway). Not the other way: the 17 Hz Z mode under
+#: a tracker's rounding (5 %, a test) measured 7 % wide and, started there, refined to 7.2 %
+#: outside its interval (from 4.5 %: 6.1 %, inside).
 SEED_DAMPING = 0.045
 #: A residual peak is seeded when it stands this many times over its channel's median (a weaker
 #: one is only named, by ``identify``'s check at ``coverage.PEAK_RATIO``): on session 16's audit
@@ -255,7 +260,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     seed_peaks : bool
         With ``ml_refine``: residual spectral peaks no SSI mode explains
         (:func:`oma.output_only.coverage.unexplained_peaks` at ``SEED_PEAK_RATIO``) are added as
-        candidates (damping ``SEED_DAMPING``, direction the spectral matrix's first singular vector
+        candidates (damping ``SEED_DAMPING``, or the peak's half-power width where narrower;
+        direction the spectral matrix's first singular vector
         at the peak) for the refinement and its evidence gate (session 16).
     uncertainty : {'information', 'jackknife'}
         Standard errors of the refined modes: from the information at the optimum (default;
@@ -341,13 +347,19 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         wander = max((h.speed_variation for h in harmonics), default=0.0)
         peaks = unexplained_peaks(raw, fs, (lo, hi), f_hat, z_hat, lines, line_relative_halfwidth=wander,
                                   ratio=SEED_PEAK_RATIO)
-        seeds = sorted({round(p.freq_hz, 6) for p in peaks})
+        widths = {}
+        for p in peaks:   # one seed per frequency (channels may share a peak): its widest measure
+            key = round(p.freq_hz, 6)
+            widths[key] = np.nanmax([widths.get(key, np.nan), p.half_power_width_hz])
+        seeds = sorted(widths)
         if seeds:
             n_seeded = len(seeds)
             seed_shapes = _peak_shapes(raw, fs, seeds)
+            seed_damping = [float(np.clip(widths[f] / (2.0 * f), SEED_MIN_DAMPING, SEED_DAMPING))
+                            if np.isfinite(widths[f]) else SEED_DAMPING for f in seeds]
             order_new = np.argsort(np.r_[f_hat, seeds], kind="stable")
             f_hat = np.r_[f_hat, seeds][order_new]
-            z_hat = np.r_[z_hat, np.full(n_seeded, SEED_DAMPING)][order_new]
+            z_hat = np.r_[z_hat, seed_damping][order_new]
             shapes = np.column_stack([shapes, seed_shapes])[:, order_new]
             support = np.r_[support, np.zeros(n_seeded)][order_new]
             seeded = np.r_[seeded, np.ones(n_seeded, dtype=bool)][order_new]
