@@ -350,7 +350,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         widths = {}
         for p in peaks:   # one seed per frequency (channels may share a peak): its widest measure
             key = round(p.freq_hz, 6)
-            widths[key] = np.nanmax([widths.get(key, np.nan), p.half_power_width_hz])
+            widths[key] = float(np.fmax(widths.get(key, np.nan), p.half_power_width_hz))
         seeds = sorted(widths)
         if seeds:
             n_seeded = len(seeds)
