@@ -646,10 +646,11 @@ def test_the_residual_scan_is_quiet_under_its_model_and_finds_a_missing_mode():
 
 def test_a_mode_ssi_misses_is_found_by_the_refinements_scan():
     """A benchmark record of the extra case where no SSI cluster forms for the 10.5 Hz X mode
-    beside Z (record 8, session 12; record 16 is another, its Z direction 31 degrees off). The scan of what the refined groups
-    leave unexplained proposes it, the group refitted with it (on a band widened to hold it) gains
-    far more than the mode's BIC penalty: exactly the true modes, each within 2 % in frequency and
-    0.9 in direction, and the warning says which mode came from the scan."""
+    beside Z (record 8, session 12; record 16 is another, its Z direction 31 degrees off). The
+    scan of what the refined groups leave unexplained proposes it, the group refitted with it (on
+    a band widened to hold it) gains far more than the mode's BIC penalty: exactly the true modes,
+    each within 2 % in frequency and 0.9 in direction, and the warning says which mode came from
+    the scan."""
     truth = EXTRA_TRUTH
     rec = synthetic_record(truth, duration_s=20.0, rng=10_008, spindle_rpm=1350.0, output="acceleration", runout_m=None)
     m = identify_output_only([rec]).modes
