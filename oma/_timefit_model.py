@@ -245,7 +245,7 @@ def _prepare(signals, harmonics, inputs, outputs, derivative=0, keep=None):
             nuis, y = nuis * w[:, None], y * w
         q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
         recs.append({"p": p, "p_held": hold_equalised(p), "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t,
-                     "nuis": nuis, "q_nuis": q_nuis, "fs": fs, "outputs": list(outputs), "inputs": list(inputs), "step": s.quantisation_step_m,
-                     "derivative": derivative, "w": w})
+                     "nuis": nuis, "q_nuis": q_nuis, "fs": fs, "outputs": list(outputs), "inputs": list(inputs),
+                     "step": s.quantisation_step_m, "derivative": derivative, "w": w})
     return recs
 
