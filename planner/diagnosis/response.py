@@ -242,6 +242,10 @@ def modal_response(model: ModalModel, force_N, sample_rate_hz: float, *, frequen
             # above the band: its in-band frequency response, never drifted (module notes)
             x += np.outer(u, band_limited_mode_response(p, fn, zeta, fs, initial_value=float(u @ f0 / k)))
             continue
+        # the held filter driven by the samples equalised for its hold: the band-limited force's
+        # response (a mode at 0.3 fs responded 26 % short at resonance; session 20). The force is
+        # equalised, not the drift's steps in stiffness below
+        p = hold_equalised(p)
         if scale.size == 1:
             p = p / scale[0] ** 2
         else:
@@ -249,9 +253,7 @@ def modal_response(model: ModalModel, force_N, sample_rate_hz: float, *, frequen
             seg = np.repeat(np.arange(scale.size), np.diff(np.append(starts, n)))
             p = p / scale[seg] ** 2
         b_seg, a_seg = mode_filter(fn * scale, zeta, fs)
-        # the held filter driven by the samples equalised for its hold: the band-limited force's
-        # response (a mode at 0.3 fs responded 26 % short at resonance; session 20)
-        q = _mode_output(hold_equalised(p), b_seg, a_seg, starts, float(u @ f0 / k) / scale[0] ** 2)
+        q = _mode_output(p, b_seg, a_seg, starts, float(u @ f0 / k) / scale[0] ** 2)
         x += np.outer(u, q)
     return x
 
