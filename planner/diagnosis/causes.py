@@ -61,6 +61,7 @@ import numpy as np
 from scipy import optimize
 
 from oma.modal import ModalModel
+from oma.synthetic import hold_equalised
 from stability.simulate import Effects, ProcessDamping
 
 from .coefficients import _units, coefficient_basis, coefficient_start, expand
@@ -226,13 +227,14 @@ def fit_unmodeled_mode(parts: Parts) -> Extension:
     if not st.views:
         return _failed("unmodeled_mode", "structure", "no displacement")
     targets = [st.fit_residual(i, p) for i, p in enumerate(st.baseline)]
+    held = [hold_equalised(v.force[:, :v.split], axis=-1) for v in st.views]   # once for every trial mode
 
     def solve(fn, zeta):
         gram = np.zeros((6, 6))
         g = np.zeros(6)
         bb = 0.0
         for i, v in enumerate(st.views):
-            y = unit_mode_response(fn, zeta, v.force[:, :v.split], v.sample_rate_hz)
+            y = unit_mode_response(fn, zeta, v.force[:, :v.split], v.sample_rate_hz, held=held[i])
             gi, ri = _sym_normal_equations(y, targets[i], st._basis(i, None), st.axes[i])
             gram += gi
             g += ri

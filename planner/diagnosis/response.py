@@ -301,14 +301,15 @@ def apply_delay(x, delay_s: float, sample_rate_hz: float) -> np.ndarray:
 
 
 def unit_mode_response(natural_frequency_hz: float, damping_ratio: float, force_N, sample_rate_hz: float, *,
-                       initial_samples: int | None = None) -> np.ndarray:
+                       initial_samples: int | None = None, held=None) -> np.ndarray:
     """Each force channel through one mode of unit static gain, shape (n_channels, n).
 
     ``y_j = H_r * F_j`` with ``H_r = w^2 / (s^2 + 2 zeta w s + w^2)``, started in static
     equilibrium with the mean of the first ``initial_samples`` samples (default 0.2 s), as
     :func:`modal_response` does (a mode above the record's band by its in-band frequency
-    response, as there). A mode of stiffness ``k`` and direction ``u`` then moves the tool tip by
-    ``u (u . y) / k``.
+    response, as there; inside it the held filter driven by the force equalised for its hold,
+    :func:`oma.synthetic.hold_equalised`, which ``held`` gives when the caller has it). A mode of
+    stiffness ``k`` and direction ``u`` then moves the tool tip by ``u (u . y) / k``.
     """
     f = np.array(force_N, dtype=float, ndmin=2)
     fs = float(sample_rate_hz)
@@ -318,7 +319,8 @@ def unit_mode_response(natural_frequency_hz: float, damping_ratio: float, force_
                                           initial_value=f[:, :m0].mean(axis=1))
     b, a = mode_filter(natural_frequency_hz, damping_ratio, fs)
     zi = _steady_state_zi(b, a, f[:, :m0].mean(axis=1))  # (2, n_channels)
-    out, _ = sps.lfilter(b, a, hold_equalised(f, axis=-1), axis=-1, zi=zi.T)
+    held = hold_equalised(f, axis=-1) if held is None else np.array(held, dtype=float, ndmin=2)
+    out, _ = sps.lfilter(b, a, held, axis=-1, zi=zi.T)
     return out
 
 
