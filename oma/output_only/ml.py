@@ -397,8 +397,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     fits_c, fit_c = chain_c
                     gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c)
                 apart = chain_c is not None and _new_mode_apart(fit_c, g_c, f0, z0, lines)
-                if gain is not None and apart and gain > penalty \
-                        and not np.any(np.abs(fit_c[0] - f0[g_c]) > hw[g_c] / 2) and not np.any(fit_c[1] > 0.5):
+                if gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, f0, hw):
                     f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])
                     u_out = np.column_stack([u_out, u0[:, -1]])
                     ok, dropped, added = np.append(ok, False), np.append(dropped, False), np.append(added, True)
