@@ -120,3 +120,27 @@ def test_a_peaks_half_power_width_is_measured_between_bins():
             assert _half_power_width(f, p, k, 20) == pytest.approx(w, rel=0.15 if w < 6 else 0.05)
     p = 1.0 / ((f - 100.0) ** 2 + 30.0 ** 2)
     assert np.isnan(_half_power_width(f, p, 100, 10))
+
+
+def test_a_seeded_tone_is_named_a_tone_and_nothing_else(record):
+    """A sinusoid at 37.3 Hz, away from the modes and the milling lines (an electrical line, a
+    fan), added to the X and Y accelerations at half and a quarter of their standard deviation:
+    SSI forms no cluster for it, its peak is seeded and the refinement takes it to well under the
+    tone limit of damping. It is said to be a tone, is no mode of the model, and the peak is named
+    (the model is then not trusted: a tone near a mode would be chatter hiding that mode). A
+    sharp line has no half-power band to cross the analysed band's edge: the edge's warning,
+    which it used to get as well, is not given."""
+    import dataclasses
+
+    x = np.array(record.data, dtype=float)
+    t = np.arange(x.shape[1]) / record.sample_rate_hz
+    acc = [i for i, c in enumerate(record.channels) if c.quantity == "acceleration"]
+    for i, a in zip(acc, (0.5, 0.25, 0.0)):
+        x[i] += a * np.std(x[i]) * np.sin(2 * np.pi * 37.3 * t + 0.3)
+    res = identify_output_only([dataclasses.replace(record, data=x)])
+    tone = [w for w in res.warnings if "a tone or a milling line's remainder" in w]
+    assert len(tone) == 1 and abs(float(tone[0].split(" Hz")[0].split()[-1]) - 37.3) < 0.05
+    assert not any("crosses the edge" in w for w in res.warnings)
+    assert np.all(np.abs(res.model.natural_frequency_hz - 37.3) > 2.0) and res.model.n_modes == 3
+    assert [p["axis"] for p in res.to_dict()["unexplained_peaks"]] == ["X", "Y"]
+    assert not res.trusted

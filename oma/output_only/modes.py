@@ -455,12 +455,11 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     # a seed the refinement could not fit has only its starting values (4.5 %, no error): no mode
     for k in np.flatnonzero(unfitted_seed):
         warnings.append(f"seeded peak at {f_hat[k]:.2f} Hz not kept: the refinement could not fit it")
-    inside &= ~(tone | unfitted_seed)
     for k in np.flatnonzero(~inside):
         warnings.append(f"pole at {f_hat[k]:.2f} Hz ({100 * z_hat[k]:.0f} % damping) not reported as a mode: its "
                         f"half-power band crosses the edge of the analysed band {lo:g}-{hi:g} Hz (widen the band "
                         "to identify it)")
-    inside = np.flatnonzero(inside)
+    inside = np.flatnonzero(inside & ~(tone | unfitted_seed))
     inside = inside[np.argsort(f_hat[inside], kind="stable")]   # added modes come last: in order of frequency
     f_hat, z_hat, shapes, support = f_hat[inside], z_hat[inside], shapes[:, inside], support[inside]
     f_se, z_se, u_se, from_information = f_se[inside], z_se[inside], u_se[inside], from_information[inside]
