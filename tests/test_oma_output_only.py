@@ -504,7 +504,8 @@ def test_view_choice_keeps_per_band_the_view_resolving_more_modes():
 def test_extra_mode_case_finds_all_four_modes_and_drops_unsupported_candidates():
     """A 70 Hz mode along (1, 1, 0) 23 dB over the 10.5 Hz X mode in the X acceleration (the
     benchmark's `extra` case): the displacement view of SSI finds the X mode, and a fictitious
-    candidate handed to the refinement is dropped by the likelihood check."""
+    candidate handed to the refinement is dropped by the likelihood check; its group refined
+    alone (``fit_only``, the flat input's retry of a group) gives the same fit."""
     from oma.output_only.ml import refine_modes_ml
 
     model = EXTRA_TRUTH
@@ -525,11 +526,52 @@ def test_extra_mode_case_finds_all_four_modes_and_drops_unsupported_candidates()
     ch = r.std(axis=1)
     u = np.hstack([m.directions.T / ch[:, None], np.array([[1.0, 1.0, 0.0]]).T / ch[:, None]])
     ev = {}
-    f, *_ = refine_modes_ml([r / ch[:, None]], 1000.0, np.append(m.freq_hz, 82.0), np.append(m.damping_ratio, 0.024),
-                            u / np.linalg.norm(u, axis=0), lines_hz=m.harmonics[0].freq_hz, evidence=ev)
+    args = ([r / ch[:, None]], 1000.0, np.append(m.freq_hz, 82.0), np.append(m.damping_ratio, 0.024),
+            u / np.linalg.norm(u, axis=0))
+    full = refine_modes_ml(*args, lines_hz=m.harmonics[0].freq_hz, evidence=ev)
     assert ev["dropped"].tolist() == [False] * 4 + [True]
-    assert abs(f[np.argmin(np.abs(m.freq_hz - 70.0))] / 70.0 - 1) < FREQ_TOL
+    k70 = int(np.argmin(np.abs(m.freq_hz - 70.0)))
+    assert abs(full.freq_hz[k70] / 70.0 - 1) < FREQ_TOL
+    # the 70 Hz mode's group (it and the candidate beside it) refined alone: the same fit to the
+    # last bit (a group's fit sees the others through their starting values only), the other
+    # groups left at their starting values, unfitted
+    assert full.group.size == 5 and full.group[4] == full.group[k70]
+    alone = full.group == full.group[k70]
+    part = refine_modes_ml(*args, lines_hz=m.harmonics[0].freq_hz, evidence={}, fit_only=alone)
+    assert np.array_equal(part.fitted, full.fitted & alone) and part.fitted[k70]
+    assert np.array_equal(part.freq_hz[alone], full.freq_hz[alone])
+    assert np.array_equal(part.damping[alone], full.damping[alone])
+    assert np.array_equal(part.freq_hz[~alone], args[2][~alone])
 
+
+
+def test_a_retried_groups_results_replace_only_that_groups():
+    """:func:`oma.output_only.modes._merged`: three starting modes in groups 0 (modes 0, 1) and 2
+    (mode 2), the first refinement's scan adding a mode to each group; group 0 retried, its scan
+    adding another. The merge keeps the starting modes in their order (0 and 1 from the retry,
+    2 from the first), then the first's added mode of group 2, then the retry's; the mode added to
+    group 0 by the first refinement is gone, and the evidence follows each mode."""
+    from oma.output_only.modes import _merged
+
+    def refinement(f, group, tag):
+        n = len(f)
+        f = np.asarray(f, dtype=float)
+        shapes = np.vstack([f, -f]).astype(complex)
+        ses = tuple(f * s for s in (0.01, 0.02, 0.03))
+        return (f, f / 100, shapes, np.ones(n, dtype=bool), ses, (f * 10, f * 20), np.asarray(group)), \
+            {**{k: (tag, k) for k in range(n)}, "dropped": np.arange(n) == 1, "duplicate": np.zeros(n, dtype=bool),
+             "added": np.arange(n) >= 3}
+
+    first, ev = refinement([10.0, 11.0, 30.0, 31.0, 12.0], [0, 0, 2, 2, 0], "first")
+    retry, ev_retry = refinement([10.5, 11.5, 30.0, 13.0], [0, 0, 2, 0], "retry")
+    out, new_ev = _merged(first, ev, retry, ev_retry, np.array([True, True, False]))
+    assert out[0].tolist() == [10.5, 11.5, 30.0, 31.0, 13.0]
+    assert out[6].tolist() == [0, 0, 2, 2, 0]
+    assert np.array_equal(out[2][0].real, out[0]) and np.array_equal(out[5][1], out[0] * 20)
+    assert np.array_equal(out[4][2], np.array([10.5, 11.5, 30.0, 31.0, 13.0]) * 0.03)
+    assert [new_ev[j] for j in range(5)] == [("retry", 0), ("retry", 1), ("first", 2), ("first", 3), ("retry", 3)]
+    assert new_ev["dropped"].tolist() == [False, True, False, False, False]
+    assert new_ev["added"].tolist() == [False, False, False, True, True]
 
 @pytest.mark.parametrize("seed", [1, 3])
 def test_modes_off_the_machine_axes_are_found_and_scaled(seed):

@@ -129,6 +129,7 @@ class RefinedModes(NamedTuple):
     replicates: np.ndarray | None
     standard_errors: np.ndarray
     input_level: np.ndarray
+    group: np.ndarray
 
 
 def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directions, *, derivative: int = 2,
@@ -136,7 +137,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     line_guard_hz: float = LINE_GUARD_HZ, max_iter: int = 40, evidence: dict | None = None,
                     segments=None, residual_terms="auto", direction_scale=None,
                     add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf), input_slope: bool = True,
-                    slopes: dict | None = None):
+                    slopes: dict | None = None, fit_only=None):
     """Whittle-ML frequency, damping and direction of output-only modes (see the module docstring).
 
     Parameters
@@ -202,6 +203,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         the record has no noise floor, e.g. +0.26 on the close pair of noise-free accelerations).
         The evidence of the background force's colour; the refined values do not depend on it.
         Costs one short refit per group (2-7 % of ``identify``'s CPU). None: not computed.
+    fit_only : array_like of bool, shape (m,), optional
+        Fit only the groups that hold a mode marked here; the others keep their starting values,
+        unfitted (a group's fit depends on the other groups through their starting values only,
+        so these groups' results are those of the fit of every group).
     residual_terms : {'auto', False, 'known', 'background', True} or a sequence of them
         The tails of the modes outside a group's band: a constant background (False); the
         responses of the other modes found (``'known'``: each ``u_j / D_j(w)`` at its estimated
@@ -236,6 +241,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         (:func:`oma.output_only.whittle._input_level`: ``E|u . F|^2 / k^2`` per Hz, two-sided), at
         the mode's frequency (with ``input_slope`` the level varies across the band); NaN where
         not fitted.
+    group : ndarray of int, shape (m + a,)
+        Each mode's group (:func:`band_groups` of the starting values), named by its lowest
+        starting index; an added mode is in the group whose scan added it.
     """
     f0 = np.asarray(freq_hz, dtype=float)
     z0 = np.asarray(damping, dtype=float)
@@ -252,7 +260,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     if f0.size == 0:
         if slopes is not None:
             slopes.update(beta=beta, beta_se=beta_se)
-        return RefinedModes(f_out, z_out, u_out, ok, reps, se, level)
+        return RefinedModes(f_out, z_out, u_out, ok, reps, se, level, np.zeros(0, dtype=int))
 
     ffts = _spectra(residuals, fs)
     gapped = []
@@ -271,6 +279,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     dropped = np.zeros(f0.size, dtype=bool)
     duplicated = np.zeros(f0.size, dtype=bool)
     added = np.zeros(f0.size, dtype=bool)
+    group = np.zeros(f0.size, dtype=int)
+    for g in groups:
+        group[g] = min(g)
+    only = None if fit_only is None else np.asarray(fit_only, dtype=bool)
 
     def fit_chain(g, w, x, ug):
         """The group's fits along the nested tail models; the chosen one by BIC; None if none."""
@@ -314,6 +326,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
 
     for g in groups:
         g = np.array(g)
+        if only is not None and not only[g].any():
+            continue
+        gid = int(g.min())
         band = (lo[g].min(), hi[g].max())
         w, x, scale, ug = group_bins(g, band)
         if x.size == 0:
@@ -401,7 +416,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])
                     u_out = np.column_stack([u_out, u0[:, -1]])
                     ok, dropped, added = np.append(ok, False), np.append(dropped, False), np.append(added, True)
-                    duplicated = np.append(duplicated, False)
+                    duplicated, group = np.append(duplicated, False), np.append(group, gid)
                     se = np.column_stack([se, np.full(4, np.nan)])
                     level = np.append(level, np.nan)
                     beta, beta_se = np.append(beta, np.nan), np.append(beta_se, np.nan)
@@ -446,4 +461,4 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         evidence["added"] = added
     if slopes is not None:
         slopes.update(beta=beta, beta_se=beta_se)
-    return RefinedModes(f_out, z_out, u_out, ok, reps, se, level)
+    return RefinedModes(f_out, z_out, u_out, ok, reps, se, level, group)

@@ -378,14 +378,19 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         if options.get("input_slope", True) and _n_moved(out, f_hat, f_se):
             # the sloped input level trades with a close pair's frequencies: where it moves a mode
             # off SSI's (a misfit, below), the flat input is tried before SSI's values are kept
-            # (session 15: 1 of 10 records' Z mode beside X, which then lost its background scale)
+            # (session 15: 1 of 10 records' Z mode beside X, which then lost its background scale),
+            # in the groups holding such a mode only (the others' fits do not depend on it)
+            redo = np.isin(out[6][:f_hat.size], out[6][:f_hat.size][_moved(out, f_hat, f_se)])
             ev_flat = {} if ml_evidence else None
             flat = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev_flat,
-                              uncertainty=uncertainty, **{**options, "input_slope": False})
+                              uncertainty=uncertainty, **{**options, "input_slope": False, "fit_only": redo})
             if _n_moved(flat, f_hat, f_se) < _n_moved(out, f_hat, f_se):
-                out, ev = flat, ev_flat
-                warnings.append("the refinement with a sloped background level moved a mode off SSI's frequency; "
-                                "the flat level was used (a white background force assumed)")
+                out, ev = _merged(out, ev, flat, ev_flat, redo)
+                at = ", ".join(f"{f:.2f}" for f in f_hat[redo])
+                warnings.append(f"the refinement with a sloped background level moved a mode off SSI's frequency; "
+                                f"the flat level was used for the modes at {at} Hz (a white background force "
+                                "assumed there)")
+        out = out[:6]
         n_new = out[0].size - f_hat.size
         if n_new:
             # modes the refinement's residual scan added (no SSI cluster): their "SSI" values are
@@ -534,12 +539,45 @@ def _reweight(x, fs, from_derivative, to_derivative, highpass_hz):
     return np.fft.irfft(spec * (1j * w) ** k, n=x.shape[-1], axis=-1)
 
 
+def _moved(out, f_ssi, f_se) -> np.ndarray:
+    """The mask of the SSI modes (shape as ``f_ssi``) whose refinement ``out`` (:func:`_ml_refine`)
+    moved their frequency by more than :data:`ML_MAX_SHIFT` SSI standard errors."""
+    n = f_ssi.size
+    shift = np.abs(out[0][:n] - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
+    return out[3][:n] & shift
+
+
+def _merged(out, ev, redo_out, redo_ev, redo):
+    """The refinement ``out`` (:func:`_ml_refine`; ``ev`` its evidence or None) with the groups
+    holding a starting mode marked ``redo`` taken from ``redo_out`` (``redo_ev``), the refinement
+    of those groups alone: the starting modes in their order, then the modes the scans added
+    (``out``'s outside those groups, then ``redo_out``'s)."""
+    n = redo.size
+    src = [(redo_out if redo[k] else out, k) for k in range(n)]
+    src += [(out, k) for k in range(n, out[0].size) if not redo[out[6][k]]]
+    src += [(redo_out, k) for k in range(n, redo_out[0].size)]
+
+    def pick(get):
+        return np.array([get(o)[k] for o, k in src]) if src else get(out)[:0]
+
+    shapes = np.column_stack([o[2][:, k] for o, k in src]) if src else out[2][:, :0]
+    ses = None if out[4] is None or redo_out[4] is None else \
+        tuple(pick(lambda o, i=i: o[4][i]) for i in range(len(out[4])))
+    merged = (pick(lambda o: o[0]), pick(lambda o: o[1]), shapes, pick(lambda o: o[3]), ses,
+              tuple(pick(lambda o, i=i: o[5][i]) for i in range(len(out[5]))), pick(lambda o: o[6]))
+    if ev is None or redo_ev is None:
+        return merged, None
+    evs = {id(out): ev, id(redo_out): redo_ev}
+    new_ev = {j: evs[id(o)][k] for j, (o, k) in enumerate(src) if k in evs[id(o)]}
+    for key in ("dropped", "duplicate", "added"):
+        new_ev[key] = np.array([evs[id(o)][key][k] for o, k in src], dtype=bool)
+    return merged, new_ev
+
+
 def _n_moved(out, f_ssi, f_se) -> int:
     """How many of the SSI modes a refinement ``out`` moved by more than ``ML_MAX_SHIFT`` SSI
     standard errors (taken for a misfit; the modes its scan added are not counted)."""
-    n = f_ssi.size
-    moved = np.abs(out[0][:n] - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
-    return int(np.sum(out[3][:n] & moved))
+    return int(np.sum(_moved(out, f_ssi, f_se)))
 
 
 def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=None,
@@ -570,7 +608,7 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         bounds = segment_bounds(r.shape[1], max(int(round(n_segments * r.shape[1] / total)), 1))
         cuts += [(i, a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     jackknife_cuts = cuts if uncertainty == "jackknife" and len(cuts) >= 3 else None
-    f, z, u, fitted, rep, se, input_level = refine_modes_ml(
+    f, z, u, fitted, rep, se, input_level, group = refine_modes_ml(
         unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines, segments=jackknife_cuts, evidence=evidence,
         direction_scale=ch, **options)
     levels = (np.where(fitted, input_level, np.nan), np.where(fitted, se[3], np.nan))
@@ -580,16 +618,16 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         v = u[:, k] * ch
         out[:, k] = v / np.linalg.norm(v) * (np.linalg.norm(shapes[:, k]) if k < f_hat.size else 1.0)
     if uncertainty == "information":
-        return f, z, out, fitted, (se[0], z * se[1], se[2]), levels
+        return f, z, out, fitted, (se[0], z * se[1], se[2]), levels, group
     if rep is None:
-        return f, z, out, fitted, None, levels
+        return f, z, out, fitted, None, levels, group
     # the jackknife spread of the direction's angle from the full-record one (rad)
     f_se = jackknife(rep[0])[1]
     z_se = jackknife(rep[1])[1]
     a = rep[2]
     cnt = np.isfinite(a).sum(axis=0)
     u_se = np.where(cnt >= 3, np.sqrt((cnt - 1) / np.maximum(cnt, 1) * np.nansum(a ** 2, axis=0)), np.nan)
-    return f, z, out, fitted, (f_se, z_se, u_se), levels
+    return f, z, out, fitted, (f_se, z_se, u_se), levels, group
 
 
 def _spectral_matrix(residuals, fs, nperseg: int):
