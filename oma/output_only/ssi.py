@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy import stats
-from scipy.linalg import solve_triangular
+from scipy.linalg import eigh, solve_triangular
 
 from .._arrays import readonly as _ro
 
@@ -187,12 +187,18 @@ def ssi_poles(correlations, sample_rate_hz: float, *, block_rows: int, max_order
     r = np.asarray(correlations, dtype=float)
     l = r.shape[1]
     i = int(block_rows)
-    toeplitz = np.empty((l * i, l * i))
-    for a in range(i):
-        for b in range(i):
-            toeplitz[a * l:(a + 1) * l, b * l:(b + 1) * l] = r[i + a - b]
-    u, s, _ = np.linalg.svd(toeplitz, full_matrices=False)
+    # block (a, b) is R_{i + a - b}: gathered at once (a double loop of i^2 block copies took 20-40 ms
+    # at i = 200)
+    lag = i + np.arange(i)[:, None] - np.arange(i)[None, :]
+    toeplitz = r[lag].transpose(0, 2, 1, 3).reshape(l * i, l * i)
     max_order = int(min(max_order, l * i - l))
+    # the leading left singular vectors and values only, as the eigenvectors of T T^T (a full SVD
+    # of the (l i)^2 Toeplitz matrix cost 2.5x as much: 74 against 30 ms at l i = 600, and most of
+    # SSI's time on real records). Squaring costs precision only where s_k / s_1 approaches 1e-8,
+    # far below the orders kept.
+    gram, ni = toeplitz @ toeplitz.T, l * i
+    ev, vec = eigh(0.5 * (gram + gram.T), subset_by_index=[ni - max_order, ni - 1], check_finite=False)
+    u, s = vec[:, ::-1], np.sqrt(np.maximum(ev[::-1], 0.0))
     orders = np.arange(2, max_order + 1, 2)
     obs_full = u[:, :max_order] * np.sqrt(s[:max_order])[None, :]
     # A_n = pinv(O_up[:, :n]) O_down[:, :n] for every n from one QR of O_up: the first n columns of
