@@ -722,3 +722,32 @@ def test_a_mode_neither_ssi_nor_the_scan_finds_leaves_the_model_untrusted_and_na
     assert not np.any(np.abs(res.modes.freq_hz / 21.0 - 1) < FREQ_TOL)   # the case this test is about
     assert not res.trusted
     assert any(p.freq_hz == pytest.approx(21.0, rel=FREQ_TOL) for p in res.unexplained_peaks)
+
+
+def test_the_scans_candidates_solved_at_once_match_one_at_a_time():
+    """The scan for a missing mode (:func:`oma.output_only._ml_inference._missing_mode`) solves
+    every candidate's generalised eigenproblem ``A u = r B u`` at once; on random positive
+    definite pairs (the candidates' weights summing to 1) it picks the same candidate as SciPy's
+    ``eigh(A, B)`` one at a time, with its eigenvalue to 1e-12 and its direction to 1e-10 (up to
+    sign); with one ``B`` indefinite it falls back to that loop, skipping it."""
+    from oma.output_only._ml_inference import _strongest_candidate, _strongest_candidate_each
+
+    rng = np.random.default_rng(7)
+    n, l, k = 40, 3, 50
+    g = rng.standard_normal((n, l, 2 * l))
+    amat = g @ np.swapaxes(g, 1, 2) / (2 * l)
+    h = rng.standard_normal((n, l, 2 * l))
+    bmat = h @ np.swapaxes(h, 1, 2) / (2 * l) + 0.1 * np.eye(l)
+    a = rng.random((k, n))
+    a /= a.sum(axis=0)
+    fcs = np.linspace(10.0, 20.0, n)
+    at_once = _strongest_candidate(fcs, a, amat, bmat, 0.03)
+    each = _strongest_candidate_each(fcs, a, amat, bmat, 0.03)
+    assert at_once[2] == each[2] and at_once[1] == pytest.approx(each[1], rel=1e-14)
+    assert at_once[0] == pytest.approx(each[0], rel=1e-12)
+    assert abs(abs(at_once[4] @ each[4]) - 1.0) < 1e-10
+    j = int(np.flatnonzero(fcs == at_once[2])[0])
+    bmat[j] = -bmat[j]
+    skipped = _strongest_candidate(fcs, a, amat, bmat, 0.03)
+    again = _strongest_candidate_each(fcs, a, amat, bmat, 0.03)
+    assert skipped[2] != at_once[2] and skipped[:4] == again[:4] and np.array_equal(skipped[4], again[4])

@@ -128,19 +128,45 @@ def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0,
     hi = min(band[1], within[1], w.max() / (2 * np.pi)) / (1.0 + 2.0 * zc)
     if not hi > lo:
         return None
+    fcs = np.linspace(lo, hi, n_freq)
+    d = _response(fcs, np.full(n_freq, zc), np.full(n_freq, zc), w)            # (K, n_freq)
+    a = gain[:, None] / np.abs(d) ** 2
+    a = a / a.sum(axis=0)
+    l = outer.shape[1]
+    amat = (a.T @ outer.reshape(w.size, l * l)).reshape(n_freq, l, l)
+    bmat = (a.T @ sinv_r.reshape(w.size, l * l)).reshape(n_freq, l, l)
+    return _strongest_candidate(fcs, a, amat, bmat, zc)
+
+
+def _strongest_candidate(fcs, a, amat, bmat, zc):
+    """Of the candidates ``fcs`` (weights ``a`` (K, n), matrices ``amat``, ``bmat`` (n, l, l)),
+    the one with the largest generalised eigenvalue of ``(amat, bmat)``: :func:`_missing_mode`'s
+    result. All at once through ``B = L L^T``: the eigenvalues of ``L^-1 A L^-T``, its
+    eigenvectors mapped back by ``L^-T`` (a loop of SciPy's ``eigh(A, B)`` on 3 x 3 matrices spent
+    most of a real record's scan in call overhead: 1 222 calls, 0.9 s); where a ``B`` is not
+    positive definite, one at a time, skipping those."""
+    try:
+        chol = np.linalg.cholesky(bmat)
+    except np.linalg.LinAlgError:
+        return _strongest_candidate_each(fcs, a, amat, bmat, zc)
+    half = np.linalg.solve(chol, amat)
+    ev, vec = np.linalg.eigh(np.linalg.solve(chol, np.swapaxes(half, 1, 2)))
+    j = int(np.argmax(ev[:, -1]))
+    u = np.linalg.solve(chol[j].T, vec[j, :, -1])
+    return float(ev[j, -1]), float(1.0 / np.sum(a[:, j] ** 2)), float(fcs[j]), zc, u / np.linalg.norm(u)
+
+
+def _strongest_candidate_each(fcs, a, amat, bmat, zc):
+    """:func:`_strongest_candidate` one candidate at a time (SciPy's ``eigh(A, B)``), skipping
+    those whose ``B`` is not positive definite."""
     best = None
-    for fc in np.linspace(lo, hi, n_freq):
-        d = _response(np.array([fc]), np.array([zc]), np.array([zc]), w)[:, 0]
-        a = gain / np.abs(d) ** 2
-        a = a / a.sum()
-        amat = np.einsum("k,kij->ij", a, outer)
-        bmat = np.einsum("k,kij->ij", a, sinv_r)
+    for j, fc in enumerate(fcs):
         try:
-            ev, vec = eigh(amat, bmat)
+            ev, vec = eigh(amat[j], bmat[j])
         except np.linalg.LinAlgError:
             continue
         if best is None or ev[-1] > best[0]:
-            best = (float(ev[-1]), float(1.0 / np.sum(a ** 2)), float(fc), zc, vec[:, -1] / np.linalg.norm(vec[:, -1]))
+            best = (float(ev[-1]), float(1.0 / np.sum(a[:, j] ** 2)), float(fc), zc, vec[:, -1] / np.linalg.norm(vec[:, -1]))
     return best
 
 
