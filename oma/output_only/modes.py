@@ -425,8 +425,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         f_hat, z_hat, ml_shapes, fitted, ses, (in_level, in_level_se) = out
         # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is
         # taken for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept
-        moved = np.abs(f_hat - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
-        fitted = fitted & ~moved    # a group whose fit failed keeps SSI's values and errors
+        fitted = fitted & ~_moved(out, f_ssi, f_se)    # a group whose fit failed keeps SSI's values and errors
         unfitted_seed = seeded & ~fitted
         in_level, in_level_se = np.where(fitted, in_level, np.nan), np.where(fitted, in_level_se, np.nan)
         f_hat, z_hat = np.where(fitted, f_hat, f_ssi), np.where(fitted, z_hat, z_ssi)
@@ -553,24 +552,23 @@ def _merged(out, ev, redo_out, redo_ev, redo):
     of those groups alone: the starting modes in their order, then the modes the scans added
     (``out``'s outside those groups, then ``redo_out``'s)."""
     n = redo.size
-    src = [(redo_out if redo[k] else out, k) for k in range(n)]
-    src += [(out, k) for k in range(n, out[0].size) if not redo[out[6][k]]]
-    src += [(redo_out, k) for k in range(n, redo_out[0].size)]
+    src = [(redo_out, redo_ev, k) if redo[k] else (out, ev, k) for k in range(n)]
+    src += [(out, ev, k) for k in range(n, out[0].size) if not redo[out[6][k]]]
+    src += [(redo_out, redo_ev, k) for k in range(n, redo_out[0].size)]
 
     def pick(get):
-        return np.array([get(o)[k] for o, k in src]) if src else get(out)[:0]
+        return np.array([get(o)[k] for o, _, k in src])
 
-    shapes = np.column_stack([o[2][:, k] for o, k in src]) if src else out[2][:, :0]
     ses = None if out[4] is None or redo_out[4] is None else \
         tuple(pick(lambda o, i=i: o[4][i]) for i in range(len(out[4])))
-    merged = (pick(lambda o: o[0]), pick(lambda o: o[1]), shapes, pick(lambda o: o[3]), ses,
-              tuple(pick(lambda o, i=i: o[5][i]) for i in range(len(out[5]))), pick(lambda o: o[6]))
+    merged = (pick(lambda o: o[0]), pick(lambda o: o[1]), np.column_stack([o[2][:, k] for o, _, k in src]),
+              pick(lambda o: o[3]), ses, tuple(pick(lambda o, i=i: o[5][i]) for i in range(len(out[5]))),
+              pick(lambda o: o[6]))
     if ev is None or redo_ev is None:
         return merged, None
-    evs = {id(out): ev, id(redo_out): redo_ev}
-    new_ev = {j: evs[id(o)][k] for j, (o, k) in enumerate(src) if k in evs[id(o)]}
+    new_ev = {j: e[k] for j, (_, e, k) in enumerate(src) if k in e}
     for key in ("dropped", "duplicate", "added"):
-        new_ev[key] = np.array([evs[id(o)][key][k] for o, k in src], dtype=bool)
+        new_ev[key] = np.array([e[key][k] for _, e, k in src], dtype=bool)
     return merged, new_ev
 
 
