@@ -328,7 +328,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         g = np.array(g)
         if only is not None and not only[g].any():
             continue
-        gid = int(g.min())
+        gid = int(group[g[0]])
         band = (lo[g].min(), hi[g].max())
         w, x, scale, ug = group_bins(g, band)
         if x.size == 0:
