@@ -7,8 +7,11 @@ path to it; where the refinement's group fits stop short of their optimum (docs/
 session 21), the last bits of the start steer the result. Per case: the records whose modes
 changed at all, by more than 0.1 % in a frequency or 1 % in a damping, more than 0.3 % / 5 %, more
 than 0.5 % / 10 %, and whose number of modes changed. With ``--gaps N``, on the first ``N`` records
-of each case, every group fit is also polished by BFGS (SciPy, analytic gradient; the polished
+of each case, each reported group fit is also polished by BFGS (SciPy, analytic gradient; the polished
 value is not used) and the decrease of ``-log L`` it finds is reported: 0 for a fit at its optimum.
+Since session 22 the fits polished are those whose estimates are reported (each group's chosen fit,
+after the refinement's finish, :func:`oma.output_only._ml_fit._finish`); before, every group fit
+(the tail models' and the evidence's too) as the scoring left it.
 
 The cases are those of ``bench_oma_output_only.py`` (the paper-like cell's five and the two probe
 structures), 20 s accelerations at 1 kHz.
@@ -57,19 +60,19 @@ def _patched(module, name, value):
 
 
 def _polish_gaps(gaps):
-    """A ``_fit_group`` that also records how much BFGS lowers each fit's ``-log L`` (not used)."""
+    """An ``_information_se`` that also records how much BFGS lowers ``-log L`` from each fit whose
+    estimates are reported (each group's chosen fit, after the refinement's finish; the polished
+    value is not used)."""
     from scipy.optimize import minimize
 
-    fit_group = ml_fit._fit_group
+    information_se = ml._information_se
 
-    def wrapped(w, x, *args, **kwargs):
-        out = fit_group(w, x, *args, **kwargs)
-        if out is not None:
-            px, mod = out[4], out[5]
-            res = minimize(lambda q: ml_fit._nll(q, mod, x), px, jac=True, method="BFGS",
-                           options=dict(gtol=1e-6, maxiter=400))
-            gaps.append(max(out[3] - float(res.fun), 0.0))
-        return out
+    def wrapped(p, mod, x, *args, **kwargs):
+        val = ml_fit._nll(p, mod, x)[0]
+        res = minimize(lambda q: ml_fit._nll(q, mod, x), p, jac=True, method="BFGS",
+                       options=dict(gtol=1e-6, maxiter=400))
+        gaps.append(max(val - float(res.fun), 0.0))
+        return information_se(p, mod, x, *args, **kwargs)
 
     return wrapped
 
@@ -84,7 +87,7 @@ def run_case(case, seeds, n_gaps):
     for i, s in enumerate(seeds):
         rec, _ = case_record(case, s)
         if i < n_gaps:
-            with _patched(ml, "_fit_group", _polish_gaps(gaps)):
+            with _patched(ml, "_information_se", _polish_gaps(gaps)):
                 a = _identify(rec)
         else:
             a = _identify(rec)

@@ -393,6 +393,67 @@ def test_real_hurco_accelerations_identified_but_not_trusted_without_coefficient
         assert not (np.min(np.abs(lines / f - 1)) < 0.005 and z < 0.01)
 
 
+def test_a_mode_the_refinement_takes_onto_a_milling_line_is_not_reported():
+    # a real 12000 rpm file (1650 Hz sampling, no anti-aliasing: the 200 Hz spindle's multiples fold
+    # onto the band): two SSI modes refine onto folded lines at 0.90 and 0.13 % damping, where SSI's
+    # own rule calls a pole the line's remainder (session 22; both were reported as modes before)
+    from oma.cutting import Cut, Tool
+    from oma.output_only.harmonics import HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE
+    from planner.diagnosis.hurco import cutting_span, read_hurco_csv
+
+    path = shared_dir() / "data" / "milling-vibration-hurco" / "EBI_T50_0p125IN_12000RPM.csv"
+    h = read_hurco_csv(path)
+    acc = np.asarray(h.acceleration_m_s2)[:, cutting_span(h.acceleration_m_s2, h.sample_rate_hz)]
+    cut = Cut(1e-4, 0.006, "down", [1, 0, 0], [0, 1, 0], spindle_rpm=float(h.spindle_rpm[0]))
+    rec = Record(h.sample_rate_hz, tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ"), acc,
+                 Tool(h.teeth, 0.0127), cut, name=path.name)
+    res = identify_output_only([rec], band_hz=(20.0, 600.0), alias_up_to=4.0)
+    lines = res.modes.harmonics[0].freq_hz
+    for f, z in zip(res.modes.freq_hz, res.modes.damping_ratio):
+        assert not (np.min(np.abs(lines / f - 1)) < HARMONIC_TOLERANCE and z < HARMONIC_MAX_DAMPING)
+    named = [w for w in res.modes.warnings if w.startswith("mode refined to")]
+    assert len(named) >= 1 and all("milling line's remainder" in w for w in named)
+    assert not res.trusted
+
+
+def test_a_scoring_fit_stopped_short_is_finished_to_the_optimum():
+    """The refinement's finish (:func:`oma.output_only._ml_fit._finish`): a close pair's Whittle fit
+    that Fisher scoring left after three steps is carried to within 0.1 of the optimum's ``-log L``
+    found by a long BFGS run, and its damping to within a tenth of its standard error of the
+    optimum's; an optimum is returned as it is."""
+    from scipy.optimize import minimize
+
+    from oma.output_only import whittle as wh
+    from oma.output_only._ml_fit import FINISH_MIN_GAIN, _finish, _initial, _scoring
+    from oma.output_only._ml_inference import _information_se
+
+    rng = np.random.default_rng(7)
+    m, l = 2, 3
+    w = 2 * np.pi * np.arange(7.5, 13.5, 0.05)
+    gain = (w / w.mean()) ** 4
+    f_true, z_true = np.array([10.0, 10.5]), np.array([0.05, 0.05])
+    mod = wh._Model(m, l, w, gain / gain.mean(), np.zeros((w.size, l, 0), dtype=complex), True, (f_true, z_true))
+    tm, tl = wh._free_c(mod), wh._tril(l)
+    p_true = np.concatenate([np.zeros(m), np.log(z_true), [0.0, 0.0, 1.0, 1.0, 0.0, 0.0],
+                             np.where(tm[0] == tm[1], 1.0, 0.0), np.where(tl[0] == tl[1], 0.05, 0.0)])
+    s = wh._spectrum(p_true, mod)[-1]
+    x = (np.linalg.cholesky(s) @ ((rng.normal(size=(w.size, l)) + 1j * rng.normal(size=(w.size, l))) / np.sqrt(2))[
+        :, :, None])[..., 0]
+    start = _initial(mod, f_true * np.array([1.01, 0.99]), 1.6 * z_true, np.array([[0.3, 1.0], [0.2, 0.1], [1.0, 0.3]]), x)
+    short, v_short = _scoring(start, mod, x, max_iter=3)
+    best = minimize(lambda q: wh._nll(q, mod, x), short, jac=True, method="BFGS",
+                    options={"maxiter": 5000, "gtol": 1e-8})
+    assert v_short - best.fun > 2 * FINISH_MIN_GAIN      # the short fit is worth finishing
+    done, v_done, iterations = _finish(short, mod, x)
+    assert 0 < iterations and v_done - best.fun < 0.1
+    u = wh._unpack(best.x, mod).u
+    se_log_z = _information_se(best.x, mod, x, u, np.ones(l))[1]
+    z_done, z_best = wh._unpack(done, mod).z, wh._unpack(best.x, mod).z
+    assert np.all(np.abs(np.log(z_done / z_best)) < 0.1 * se_log_z)
+    again = _finish(best.x, mod, x)
+    assert again[0] is best.x and again[1] == wh._nll(best.x, mod, x)[0]
+
+
 @pytest.mark.parametrize("noise,n_residual,slope,coherent,signed", [
     (True, 0, False, True, False), (False, 6, False, True, False), (True, 6, False, True, False),
     (True, 6, True, False, False), (True, 0, True, True, True), (False, 6, True, True, False)])

@@ -340,6 +340,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         warnings.append("record too short for the segment jackknife: no intervals")
     seeded = np.zeros(f_hat.size, dtype=bool)
     unfitted_seed = np.zeros(f_hat.size, dtype=bool)
+    refined = np.zeros(f_hat.size, dtype=bool)
     if ml_refine and seed_peaks:
         # a residual spectral peak no SSI mode explains (on a short record a clean mode can form no
         # SSI cluster: session 16, a 17 Hz Z mode 4662 times its channel's median in a 5 s record)
@@ -427,6 +428,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         # taken for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept
         fitted = fitted & ~_moved(out, f_ssi, f_se)    # a group whose fit failed keeps SSI's values and errors
         unfitted_seed = seeded & ~fitted
+        refined = fitted
         in_level, in_level_se = np.where(fitted, in_level, np.nan), np.where(fitted, in_level_se, np.nan)
         f_hat, z_hat = np.where(fitted, f_hat, f_ssi), np.where(fitted, z_hat, z_ssi)
         if ses is not None:
@@ -451,10 +453,15 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     # at 13-22 % damping, 2 of 40 records of structures unlike the paper's). Not a mode; said so.
     inside = (f_hat * (1.0 - z_hat) >= lo) & (f_hat * (1.0 + z_hat) <= hi)
     # a seeded peak the refinement turned into a tone on a milling line (a real Hurco file: a peak
-    # 3 Hz off a 266.5 Hz tooth line went onto it at 0 % damping) is the line's, not a mode
-    tone = seeded & ~unfitted_seed & (at_milling_line(f_hat, z_hat, lines) | (z_hat < SEED_MIN_DAMPING))
+    # 3 Hz off a 266.5 Hz tooth line went onto it at 0 % damping) is the line's, not a mode; so is
+    # an SSI mode the refinement took onto a line (SSI's own rule for its poles, :func:`at_milling_line`:
+    # session 22, a real Hurco file's 264.7 Hz mode finished at 265.9 Hz and 0.08 %, beside the
+    # 266.7 Hz tooth line, where SSI's own poles had been rejected as the line's)
+    tone = (seeded & ~unfitted_seed & (at_milling_line(f_hat, z_hat, lines) | (z_hat < SEED_MIN_DAMPING))) | \
+        (refined & ~seeded & at_milling_line(f_hat, z_hat, lines))
     for k in np.flatnonzero(tone):
-        warnings.append(f"seeded peak refined to {f_hat[k]:.2f} Hz at {100 * z_hat[k]:.2f} % damping: a tone or a "
+        what = "seeded peak" if seeded[k] else "mode"
+        warnings.append(f"{what} refined to {f_hat[k]:.2f} Hz at {100 * z_hat[k]:.2f} % damping: a tone or a "
                         "milling line's remainder, not kept as a mode")
     # a seed the refinement could not fit has only its starting values (4.5 %, no error): no mode
     for k in np.flatnonzero(unfitted_seed):
