@@ -279,13 +279,18 @@ def _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_r
             u[r] = v / np.linalg.norm(v)
         return u
 
-    def spectrum(p):
-        la = np.concatenate([[0.0], p[n_s:n_s + n - 1]])
+    def parts(p):
+        """``S = s M D M^H`` and its factors: the level ``s`` per block (B,), the channels' scales
+        ``D`` (l,), the turned directions (n, l), ``g / m`` (B, n), ``M`` and ``S`` (B, l, l)."""
+        s_b = np.exp(hat @ p[:n_s])
+        scale_c = np.exp(np.concatenate([[0.0], p[n_s + n - 1 + n_t:]])) if n_c else np.ones(l)
         u = turned(p)
-        a = np.einsum("ri,rj,br->bij", u, u, g * np.exp(la)[None])
-        if n_c:
-            a = a * np.exp(0.5 * np.concatenate([[0.0], p[n_s + n - 1 + n_t:]]))[None, None, :]
-        return np.exp(hat @ p[:n_s])[:, None, None] * (a @ a.conj().transpose(0, 2, 1))
+        gm = g * np.exp(np.concatenate([[0.0], p[n_s:n_s + n - 1]]))[None]
+        m_b = np.einsum("ri,rj,br->bij", u, u, gm)
+        return s_b, scale_c, u, gm, m_b, s_b[:, None, None] * ((m_b * scale_c) @ m_b.conj().transpose(0, 2, 1))
+
+    def spectrum(p):
+        return parts(p)[-1]
 
     def per_block(p):
         s = spectrum(p)
@@ -305,13 +310,7 @@ def _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_r
         model spectrum is not positive definite."""
         if not np.all(np.isfinite(p)):
             return None
-        s_b = np.exp(hat @ p[:n_s])
-        scale_c = np.exp(np.concatenate([[0.0], p[n_s + n - 1 + n_t:]])) if n_c else np.ones(l)
-        la = np.concatenate([[0.0], p[n_s:n_s + n - 1]])
-        u = turned(p)
-        gm = g * np.exp(la)[None]                                        # (B, n)
-        m_b = np.einsum("ri,rj,br->bij", u, u, gm)
-        s = s_b[:, None, None] * ((m_b * scale_c[None, None, :]) @ m_b.conj().transpose(0, 2, 1))
+        s_b, scale_c, u, gm, m_b, s = parts(p)
         try:
             chol = np.linalg.cholesky(s)
         except np.linalg.LinAlgError:
