@@ -174,7 +174,7 @@ def _finish(p, mod: _Model, x, *, max_iter: int = FINISH_ITER):
     information it takes Fisher-sized steps from the first iteration."""
     val, g = _nll(p, mod, x)
     jm = _fisher(p, mod) if val < 1e30 else None
-    if jm is None:
+    if jm is None or not np.all(np.isfinite(jm)) or not np.all(np.isfinite(g)):
         return p, val, 0
     scale = np.sqrt(np.maximum(np.diag(jm), 1e-12))
     h0 = np.linalg.inv(jm / np.outer(scale, scale) + 1e-6 * np.eye(p.size)) / np.outer(scale, scale)
