@@ -22,7 +22,7 @@ __all__: list[str] = []
 FISHER_REUSE = 3
 #: Quasi-Newton iterations of :func:`_finish`. Session 22, three of the extra case's 24.8 Hz fits
 #: that had stopped 130-225 units of ``-log L`` short: 97-99 % of the 200 iterations' gain within
-#: 20, 98.7-99.6 % within 30; a 70 Hz fit in a flat valley of the tails' input covariance gained
+#: 20, 98.7-99.7 % within 30; a 70 Hz fit in a flat valley of the tails' input covariance gained
 #: 0.01-0.03 per iteration there, which the cap and :data:`FINISH_MIN_GAIN` keep out.
 FINISH_ITER = 30
 #: A finish is kept when it lowers ``-log L`` by more than this: half the 95 % quantile of
