@@ -106,7 +106,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--cases", nargs="+", default=list(CASES) + list(PROBES), choices=CASES + tuple(PROBES))
-    ap.add_argument("--gaps", type=int, default=2, help="records per case whose group fits are also polished")
+    ap.add_argument("--gaps", type=int, default=2, help="records per case whose reported group fits are also polished")
     args = ap.parse_args(argv)
     head = " / ".join(f">{100 * f:g} % or {100 * z:g} %" for f, z in THRESHOLDS)
     print(f"{'case':>8} | records | changed at all | {head} | modes changed | -log L gap to BFGS: median, 90 %, max")

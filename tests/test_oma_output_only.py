@@ -371,18 +371,29 @@ def test_whittle_bound_tends_to_the_small_damping_closed_form():
     assert np.isclose(whittle_bound(10.0, 0.05, 80.0)[0], sd_f / 2, rtol=1e-6)
 
 
+def _hurco_record(name, window_s=None):
+    """A real Hurco file of shared/data as an output-only record (accelerations, no force), its
+    spindle speed and flutes from the file: ``window_s`` seconds from a quarter of that into the
+    file, or (None) the span where the tool cuts."""
+    from oma.cutting import Cut, Tool
+    from planner.diagnosis.hurco import cutting_span, read_hurco_csv
+
+    path = shared_dir() / "data" / "milling-vibration-hurco" / name
+    h = read_hurco_csv(path)
+    if window_s is None:
+        span = cutting_span(h.acceleration_m_s2, h.sample_rate_hz)
+    else:
+        n = int(window_s * h.sample_rate_hz)
+        span = slice(n // 4, n // 4 + n)
+    cut = Cut(1e-4, 0.006, "down", [1, 0, 0], [0, 1, 0], spindle_rpm=float(h.spindle_rpm[0]))
+    return Record(h.sample_rate_hz, tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ"),
+                  np.asarray(h.acceleration_m_s2)[:, span], Tool(h.teeth, 0.0127), cut, name=path.name)
+
+
 def test_real_hurco_accelerations_identified_but_not_trusted_without_coefficients():
     # one real file of shared/data (its README): a 4000 rpm, 4-flute steel cut, 8 s of it
-    from oma.cutting import Cut, Tool
-    from planner.diagnosis.hurco import read_hurco_csv
-
-    path = shared_dir() / "data" / "milling-vibration-hurco" / "EBI_F20IN_T50_D0p05IN_4000RPM.csv"
-    h = read_hurco_csv(path)
-    n = int(8.0 * h.sample_rate_hz)
-    acc = np.asarray(h.acceleration_m_s2)[:, n // 4: n // 4 + n]
-    cut = Cut(1e-4, 0.006, "down", [1, 0, 0], [0, 1, 0], spindle_rpm=4000.0)
-    rec = Record(h.sample_rate_hz, tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ"), acc,
-                 Tool(4, 0.0127), cut, name=path.name)
+    rec = _hurco_record("EBI_F20IN_T50_D0p05IN_4000RPM.csv", window_s=8.0)
+    assert rec.tool.teeth == 4 and rec.cut.spindle_rpm == 4000.0
     res = identify_output_only([rec], band_hz=(20.0, 600.0))
     # the spindle found within 1 % of the name's 4000 rpm, from the response's own comb
     assert abs(res.modes.harmonics[0].spindle_hz / (4000 / 60) - 1) < 0.01
@@ -397,17 +408,10 @@ def test_a_mode_the_refinement_takes_onto_a_milling_line_is_not_reported():
     # a real 12000 rpm file (1650 Hz sampling, no anti-aliasing: the 200 Hz spindle's multiples fold
     # onto the band): two SSI modes refine onto folded lines at 0.90 and 0.13 % damping, where SSI's
     # own rule calls a pole the line's remainder (session 22; both were reported as modes before)
-    from oma.cutting import Cut, Tool
     from oma.output_only.harmonics import HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE
-    from planner.diagnosis.hurco import cutting_span, read_hurco_csv
 
-    path = shared_dir() / "data" / "milling-vibration-hurco" / "EBI_T50_0p125IN_12000RPM.csv"
-    h = read_hurco_csv(path)
-    acc = np.asarray(h.acceleration_m_s2)[:, cutting_span(h.acceleration_m_s2, h.sample_rate_hz)]
-    cut = Cut(1e-4, 0.006, "down", [1, 0, 0], [0, 1, 0], spindle_rpm=float(h.spindle_rpm[0]))
-    rec = Record(h.sample_rate_hz, tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ"), acc,
-                 Tool(h.teeth, 0.0127), cut, name=path.name)
-    res = identify_output_only([rec], band_hz=(20.0, 600.0), alias_up_to=4.0)
+    res = identify_output_only([_hurco_record("EBI_T50_0p125IN_12000RPM.csv")], band_hz=(20.0, 600.0),
+                               alias_up_to=4.0)
     lines = res.modes.harmonics[0].freq_hz
     for f, z in zip(res.modes.freq_hz, res.modes.damping_ratio):
         assert not (np.min(np.abs(lines / f - 1)) < HARMONIC_TOLERANCE and z < HARMONIC_MAX_DAMPING)

@@ -457,8 +457,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     # an SSI mode the refinement took onto a line (SSI's own rule for its poles, :func:`at_milling_line`:
     # session 22, a real Hurco file's 264.7 Hz mode finished at 265.9 Hz and 0.08 %, beside the
     # 266.7 Hz tooth line, where SSI's own poles had been rejected as the line's)
-    tone = (seeded & ~unfitted_seed & (at_milling_line(f_hat, z_hat, lines) | (z_hat < SEED_MIN_DAMPING))) | \
-        (refined & ~seeded & at_milling_line(f_hat, z_hat, lines))
+    tone = refined & (at_milling_line(f_hat, z_hat, lines) | (seeded & (z_hat < SEED_MIN_DAMPING)))
     for k in np.flatnonzero(tone):
         what = "seeded peak" if seeded[k] else "mode"
         warnings.append(f"{what} refined to {f_hat[k]:.2f} Hz at {100 * z_hat[k]:.2f} % damping: a tone or a "
