@@ -46,19 +46,22 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
         return p, val
     lam = 1e-3
     n_modal = 2 * mod.m + mod.m * mod.l
-    age = 0
+    age, jm_at_p = 0, jm is not None
     reuse = FISHER_REUSE if reuse is None else reuse
-    for it in range(max_iter):
+    it = -1
+    while it + 1 < max_iter:
+        it += 1
         # the information changes slowly near the optimum: recomputed every ``reuse`` steps (and
         # after a rejected step); ``jm`` given: that of ``p``
         if jm is None or age >= reuse or (it == warm and warm > 0):
-            jm, age = _fisher(p, mod), 0
+            jm, age, jm_at_p = _fisher(p, mod), 0, True
             if jm is None:
                 return p, val
         age += 1
         free = np.arange(p.size) if it >= warm else np.arange(n_modal, p.size)
         jf = jm[np.ix_(free, free)]
         diag = np.maximum(np.diag(jf), 1e-12)
+        fresh = jm_at_p   # every step of this iteration is from the information at ``p``
         while True:
             step = np.zeros_like(p)
             step[free] = np.linalg.solve(jf + lam * np.diag(diag), -g[free])
@@ -68,7 +71,7 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
                 break
             lam *= 10.0
             if age > 1:
-                jm, age = _fisher(p, mod), 1
+                jm, age, jm_at_p = _fisher(p, mod), 1, True
                 if jm is None:
                     return p, val
                 jf = jm[np.ix_(free, free)]
@@ -78,10 +81,16 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
                     break
                 return p, val
         if lam > 1e8:
+            # no step of the covariance factors alone lowers ``-log L`` from ``p``; from the
+            # information at ``p`` throughout, the warm iterations left would repeat this one
+            # exactly, so the full steps start now (session 23: such fits had taken 61 evaluations
+            # of the likelihood and moved nothing)
             lam = 1e-3
+            if fresh:
+                it = warm - 1
             continue
         done = val - v2 < tol and it >= warm
-        p, val, g = p + step, v2, g2
+        p, val, g, jm_at_p = p + step, v2, g2, False
         lam = max(lam / 10.0, 1e-6)
         if done:
             break
