@@ -29,7 +29,7 @@ from ..signals import integrate_frequency_domain
 from .coverage import SEGMENT_S, unexplained_peaks
 from .harmonics import (HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE, ResponseHarmonics, at_milling_line,
                         remove_response_harmonics)
-from .ml import band_groups, refine_modes_ml
+from .ml import LEFT_DAMPING, band_groups, refine_modes_ml
 from .ssi import StabilisedModes, mac, match_modes, same_mode, segment_correlations, select_modes, ssi_poles
 from .uncertainty import jackknife, segment_bounds, t_interval
 
@@ -407,14 +407,19 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                 gain = f" (likelihood gain {ev[k][0]:.1f} against penalty {ev[k][1]:.1f})" if ev else ""
                 warnings.append(f"mode at {f_hat[k]:.2f} Hz found by the refinement's scan of what its group's "
                                 f"model left unexplained, not by SSI{gain}")
-        # a mode whose likelihood gain is under its BIC penalty is not supported by the data, and
-        # one the fit moved onto another's peak is a second candidate for it: the refinement
-        # dropped it and refitted its group without it
+        # a mode whose likelihood gain is under its BIC penalty is not supported by the data, one
+        # the fit moved onto another's peak is a second candidate for it, and one the fit took out
+        # of its band is not a mode at its pole: the refinement dropped it and refitted its group
+        # without it
         weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
         for k in np.flatnonzero(weak):
             what = "stable SSI cluster" if support[k] > 0 else "seeded peak"
             why = ("the refinement moved it out of its band onto another mode's peak (a second candidate for that "
                    "mode)" if ev["duplicate"][k] else
+                   "the refinement's fit of its group took it out of its band or to a damping over "
+                   f"{100 * LEFT_DAMPING:.0f} % (what the spectrum holds there is background, not a mode at this pole), "
+                   "and the group refitted without it keeps its other modes in their bands"
+                   if ev["left_band"][k] else
                    f"the spectrum's likelihood gains {ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
             warnings.append(f"{what} at {f_hat[k]:.2f} Hz not kept: {why}")
         keep_ = ~weak
@@ -573,7 +578,7 @@ def _merged(out, ev, redo_out, redo_ev, redo):
     if ev is None or redo_ev is None:
         return merged, None
     new_ev = {j: e[k] for j, (_, e, k) in enumerate(src) if k in e}
-    for key in ("dropped", "duplicate", "added"):
+    for key in ("dropped", "duplicate", "left_band", "added"):
         new_ev[key] = np.array([e[key][k] for _, e, k in src], dtype=bool)
     return merged, new_ev
 
