@@ -298,8 +298,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         group[g] = min(g)
     only = None if fit_only is None else np.asarray(fit_only, dtype=bool)
 
-    def fit_chain(g, w, x, ug):
-        """The group's fits along the nested tail models; the chosen one by BIC; None if none."""
+    def fit_chain(g, w, x, ug, gone=()):
+        """The group's fits along the nested tail models; the chosen one by BIC; None if none.
+        ``gone``: modes outside ``g`` that are no tails of it, besides those dropped (no modes)."""
         fits, by_kind = [], {}
         for r in kinds:
             # each richer model started from the optimum of the model it extends (same spectrum,
@@ -310,7 +311,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             starts = [ug] if prev is not None or g.size < 2 else [ug, _orthogonalised(ug)]
             tails = None
             if r == "known":
-                others = np.setdiff1d(np.arange(f0.size), g)
+                # the other modes' tails: not those dropped (session 23, the extra case's seed 73:
+                # the 70 Hz mode's group, refitted without the true mode's SSI candidate, had it
+                # back as a known tail and fitted its other candidate as a hump beside it)
+                others = np.setdiff1d(np.flatnonzero(~dropped), np.concatenate([g, np.asarray(gone, dtype=int)]))
                 if others.size == 0:
                     continue  # no mode outside the group: the constant background is the same model
                 tails = _known_tails(w, (f0[others], z0[others], u0[:, others]), scale)
@@ -387,9 +391,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             if candidates.any():
                 j = int(np.flatnonzero(candidates)[np.argmin(margin[candidates])])
                 keep = np.arange(g.size) != j
-                chain = fit_chain(g[keep], w, x, ug[:, keep]) if keep.any() else None
                 weak[j] = True
                 dropped[g[weak]] = True
+                chain = fit_chain(g[keep], w, x, ug[:, keep]) if keep.any() else None
                 duplicated[g[weak]] = duplicate[j]
                 g, ug = g[~weak], ug[:, ~weak]
                 if chain is None:
@@ -411,7 +415,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     chain_k = None
                     break
                 g_k, ug_k = g_k[~left], ug_k[:, ~left]
-                chain_k = fit_chain(g_k, w, x, ug_k)
+                chain_k = fit_chain(g_k, w, x, ug_k, gone=np.setdiff1d(g, g_k))
                 if chain_k is None:
                     break
             if chain_k is not None:
