@@ -48,9 +48,8 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
     n_modal = 2 * mod.m + mod.m * mod.l
     age, jm_at_p = 0, jm is not None
     reuse = FISHER_REUSE if reuse is None else reuse
-    it = -1
-    while it + 1 < max_iter:
-        it += 1
+    it = 0
+    while it < max_iter:
         # the information changes slowly near the optimum: recomputed every ``reuse`` steps (and
         # after a rejected step); ``jm`` given: that of ``p``
         if jm is None or age >= reuse or (it == warm and warm > 0):
@@ -81,17 +80,16 @@ def _scoring(p, mod: _Model, x, *, max_iter: int = 12, tol: float = 1e-2, warm: 
                     break
                 return p, val
         if lam > 1e8:
-            # no step of the covariance factors alone lowers ``-log L`` from ``p``; from the
-            # information at ``p`` throughout, the warm iterations left would repeat this one
-            # exactly, so the full steps start now (session 23: such fits had taken 61 evaluations
-            # of the likelihood and moved nothing)
-            lam = 1e-3
-            if fresh:
-                it = warm - 1
+            # (a warm iteration) no step of the covariance factors alone lowers ``-log L`` from
+            # ``p``; from the information at ``p`` throughout, the warm iterations left would
+            # repeat this one exactly, so the full steps start now (session 23: such fits had taken
+            # 61 evaluations of the likelihood and moved nothing)
+            lam, it = 1e-3, warm if fresh else it + 1
             continue
         done = val - v2 < tol and it >= warm
         p, val, g, jm_at_p = p + step, v2, g2, False
         lam = max(lam / 10.0, 1e-6)
+        it += 1
         if done:
             break
     return p, val
