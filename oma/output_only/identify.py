@@ -232,13 +232,20 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
             raise RecordError(r.path, "signals.columns", "motion along the same axes as the first record",
                               "other axes")
     warnings: list[str] = []
+    if not axes.all():
+        missing = ", ".join(a for a, ok in zip("XYZ", axes) if not ok)
+        warnings.append(f"no {missing} channel in the records: modes that move only along {missing} are not seen, "
+                        f"and the model holds no flexibility along {missing} (the modes' directions are measured "
+                        "in the recorded axes only)")
     rpm = [r.cut.spindle_rpm for r in records]
     teeth = [r.tool.teeth for r in records]
     # a record that does not cut throughout (entry, exit; no window_s given): the tooth lines'
     # amplitude is that of the cut only over part of it, so the lines and the modes are taken
-    # over the cut found from the tooth line's envelope (audit of session 15: +41-52 % stiffness)
+    # over the cut found from the tooth line's envelope (audit of session 15: +41-52 % stiffness);
+    # found from the recorded axes (session 23: a record without a Z channel, whose Z row is NaN,
+    # had raised an internal error here)
     for i, (r, v, z) in enumerate(zip(records, rpm, teeth)):
-        win = cutting_window(signals[i], fs, v, z) if v is not None and v > 0 else None
+        win = cutting_window(signals[i][axes], fs, v, z) if v is not None and v > 0 else None
         if win is None:
             continue
         a, b = win
