@@ -199,6 +199,12 @@ def ssi_poles(correlations, sample_rate_hz: float, *, block_rows: int, max_order
     gram, ni = toeplitz @ toeplitz.T, l * i
     ev, vec = eigh(0.5 * (gram + gram.T), subset_by_index=[ni - max_order, ni - 1], check_finite=False)
     u, s = vec[:, ::-1], np.sqrt(np.maximum(ev[::-1], 0.0))
+    # no order beyond the Toeplitz matrix's numerical rank (the squared singular values lose what is
+    # under 1e-7 of the first): past it the observability matrix has columns of rounding noise and
+    # the shifted system is singular (session 23: a one-channel record, decimated with a steep
+    # filter, was rank 50 of 60 and raised)
+    rank = int(np.sum(s > 1e-7 * s[0])) if s.size and s[0] > 0 else 0
+    max_order = min(max_order, rank - rank % 2)
     orders = np.arange(2, max_order + 1, 2)
     obs_full = u[:, :max_order] * np.sqrt(s[:max_order])[None, :]
     # A_n = pinv(O_up[:, :n]) O_down[:, :n] for every n from one QR of O_up: the first n columns of
