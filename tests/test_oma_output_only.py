@@ -333,6 +333,27 @@ def test_a_record_without_a_z_channel_gives_its_x_and_y_modes_and_says_what_it_c
     assert sum("no Z channel" in w for w in res.warnings) == 1
 
 
+def test_a_dead_motion_channel_is_taken_as_not_recorded():
+    """A Z accelerometer channel that reads 0 throughout (a dead sensor, a cable off) had raised an
+    internal error (the channels' unit scaling divided by its zero power); it is named and taken as
+    not recorded: the same modes as without the channel."""
+    from dataclasses import replace
+
+    rec = _record(0)
+    data = rec.data.copy()
+    data[[i for i, c in enumerate(rec.channels) if c.quantity == "acceleration" and c.axis == "Z"][0]] = 0.0
+    res = identify_output_only([replace(rec, data=data)])
+    xy = replace(rec, channels=tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XY"),
+                 data=rec.vector("acceleration")[:2])
+    ref = identify_output_only([xy])
+    np.testing.assert_array_equal(res.modes.freq_hz, ref.modes.freq_hz)
+    assert sum("Z motion channel is constant" in w for w in res.warnings) == 1
+    # every motion channel constant: a record error (one line, exit 2 from the CLI), no traceback
+    data[[i for i, c in enumerate(rec.channels) if c.quantity == "acceleration"]] = 0.0
+    with pytest.raises(RecordError, match="only constant ones"):
+        identify_output_only([replace(rec, data=data)])
+
+
 def test_a_one_axis_record_gives_the_mode_along_it():
     """One accelerometer axis (X): SSI's one-channel Toeplitz matrix, decimated with a steep filter,
     has numerical rank 50 of the 60 orders asked, and its shifted system was singular there (an

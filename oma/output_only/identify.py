@@ -226,12 +226,23 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
             raise RecordError(r.path, "signals.columns", f"{quantity} channels like the first record", q)
         signals.append(y)
         slices.append(sl)
+    warnings: list[str] = []
+    for r, y in zip(records, signals):
+        # a channel that never moves carries nothing (a dead sensor, a cable off): as not recorded
+        # (session 23: an all-zero Z channel had raised an internal error in the channel scaling)
+        dead = ~np.all(np.isnan(y), axis=1)
+        dead[dead] = np.ptp(y[dead], axis=1) == 0
+        for a in np.flatnonzero(dead):
+            warnings.append(f"{r.name or 'record'}: the {'XYZ'[a]} motion channel is constant (a dead sensor or a "
+                            "disconnected cable?): taken as not recorded")
+        y[dead] = np.nan
     axes = ~np.all(np.isnan(signals[0]), axis=1)
     for r, y in zip(records, signals):
         if not np.array_equal(~np.all(np.isnan(y), axis=1), axes):
             raise RecordError(r.path, "signals.columns", "motion along the same axes as the first record",
                               "other axes")
-    warnings: list[str] = []
+    if not axes.any():
+        raise RecordError(records[0].path, "signals.columns", "a motion channel that moves", "only constant ones")
     if not axes.all():
         missing = ", ".join(a for a, ok in zip("XYZ", axes) if not ok)
         warnings.append(f"no {missing} channel in the records: modes that move only along {missing} are not seen, "
