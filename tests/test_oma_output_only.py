@@ -333,6 +333,32 @@ def test_a_record_without_a_z_channel_gives_its_x_and_y_modes_and_says_what_it_c
     assert sum("no Z channel" in w for w in res.warnings) == 1
 
 
+def test_the_cut_is_found_from_a_clear_tooth_line_and_not_from_one_in_the_noise():
+    """The cut's window from the tooth line's envelope. Accelerations whose tooth lines start 6 s
+    into the record (the first 6 s of a record without them): the window starts there. Displacements
+    of a record that cuts throughout: the line stands about 2 times over the noise beside it (5
+    needed), and before session 23 the noise's dips were read as gaps (this record cut to 7.8-20 s);
+    now the whole record is used and a warning says why no window could be told."""
+    from dataclasses import replace
+
+    full = _record(0)
+    idle = _record(0, harmonics=False)
+    n0 = int(6.0 * full.sample_rate_hz)
+    data = full.data.copy()
+    data[:, :n0] = idle.data[:, :n0]
+    res = identify_output_only([replace(full, data=data)])
+    win = [w for w in res.warnings if "tooth-passing line is present only from" in w]
+    assert len(win) == 1
+    start, stop = (float(v) for v in win[0].split("present only from ")[1].split(" s of")[0].split(" to "))
+    assert 6.0 <= start < 7.0 and stop == 20.0
+
+    disp = synthetic_record(duration_s=20.0, rng=0, spindle_rpm=2700.0, harmonics=True, output="displacement",
+                            runout_m=None)
+    res = identify_output_only([disp])
+    assert not any("present only from" in w for w in res.warnings)
+    assert sum("too weak to tell whether the tool cuts throughout" in w for w in res.warnings) == 1
+
+
 def test_a_dead_motion_channel_is_taken_as_not_recorded():
     """A Z accelerometer channel that reads 0 throughout (a dead sensor, a cable off) had raised an
     internal error (the channels' unit scaling divided by its zero power); it is named and taken as

@@ -25,7 +25,7 @@ from ..timefit import resolved_band_hz
 from .background import (ANISOTROPY_LOG_SD, BackgroundLevel, background_level, consistent_up_to_colour,
                          scale_by_background)
 from .coverage import unexplained_peaks
-from .harmonics import STEADY_SEGMENTS, cutting_window, strongest_line_hz
+from .harmonics import STEADY_SEGMENTS, WINDOW_LINE_TO_NOISE, cutting_window, strongest_line_hz
 from .mass_line import mass_line_directions, mass_line_levels
 from .modes import OutputOnlyModes, output_only_modes
 from .resolution import unresolved_modes
@@ -256,7 +256,12 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     # found from the recorded axes (session 23: a record without a Z channel, whose Z row is NaN,
     # had raised an internal error here)
     for i, (r, v, z) in enumerate(zip(records, rpm, teeth)):
-        win = cutting_window(signals[i][axes], fs, v, z) if v is not None and v > 0 else None
+        info: dict = {}
+        win = cutting_window(signals[i][axes], fs, v, z, info=info) if v is not None and v > 0 else None
+        if info.get("line_to_noise", np.inf) < WINDOW_LINE_TO_NOISE:
+            warnings.append(f"{r.name or 'record'}: the tooth-passing line stands only {info['line_to_noise']:.1f} "
+                            "times over the noise beside it, too weak to tell whether the tool cuts throughout: the "
+                            "whole record is used (give cut.window_s if the tool does not cut throughout)")
         if win is None:
             continue
         a, b = win
