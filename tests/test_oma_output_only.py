@@ -74,6 +74,19 @@ def test_ssi_recovers_two_modes_of_a_noise_driven_system():
     assert np.allclose(sel.damping_ratio, [0.03, 0.02], rtol=0.35)  # 60 s: ~10 % sd of a 3 % mode
 
 
+def test_ssi_stops_at_the_correlations_rank():
+    """SSI's orders stop at the block Toeplitz matrix's numerical rank: a silent band (zero
+    correlations) has no pole rather than a singular system, and one mode's noiseless correlations
+    give it at order 2 whatever the orders asked."""
+    assert ssi_poles(np.zeros((50, 2, 2)), 100.0, block_rows=10, max_order=10, band_hz=(1, 40)).freq_hz.size == 0
+    fs, f, z = 100.0, 12.0, 0.03
+    lam = np.exp((-z + 1j * np.sqrt(1 - z * z)) * 2 * np.pi * f / fs)
+    r = np.real(lam ** np.arange(60))[:, None, None] * np.array([[1.0, 0.5], [0.5, 0.25]])[None]
+    p = ssi_poles(r, fs, block_rows=20, max_order=20, band_hz=(1, 40))
+    assert p.orders.tolist() == [2]
+    np.testing.assert_allclose([p.freq_hz[0], p.damping_ratio[0]], [f, z], rtol=1e-6)
+
+
 def test_real_direction_removes_phase_and_sign():
     u = np.array([0.6, -0.8, 0.0])
     assert np.allclose(real_direction(-u * np.exp(0.7j)), [-0.6, 0.8, 0.0])

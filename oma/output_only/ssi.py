@@ -206,6 +206,9 @@ def ssi_poles(correlations, sample_rate_hz: float, *, block_rows: int, max_order
     rank = int(np.sum(s > 1e-7 * s[0])) if s.size and s[0] > 0 else 0
     max_order = min(max_order, rank - rank % 2)
     orders = np.arange(2, max_order + 1, 2)
+    if orders.size == 0:   # no second-order system in the correlations (a silent band): no poles
+        return SSIPoles(order=np.zeros(0, dtype=int), freq_hz=np.zeros(0), damping_ratio=np.zeros(0),
+                        shapes=np.zeros((l, 0), dtype=complex), stable=np.zeros(0, dtype=bool), orders=orders)
     obs_full = u[:, :max_order] * np.sqrt(s[:max_order])[None, :]
     # A_n = pinv(O_up[:, :n]) O_down[:, :n] for every n from one QR of O_up: the first n columns of
     # O_up are Q[:, :n] R[:n, :n], so A_n = R[:n, :n]^-1 (Q^T O_down)[:n, :n]
