@@ -223,6 +223,11 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
             step = float(max(steps))
     else:
         order = 1 if quantity == "velocity" else 2
+        # a velocity or acceleration channel that never moves is a dead sensor (a cable off), not a
+        # tool at rest: as not recorded (session 23: an all-zero Z accelerometer had been read as a
+        # sensor of enormous noise). A constant displacement is a tracker's rounding: kept
+        with np.errstate(invalid="ignore"):
+            motion[np.ptp(motion, axis=1) == 0] = np.nan
         ok = ~np.all(np.isnan(motion), axis=1)
         integrated = np.full_like(motion, np.nan)
         integrated[ok] = integrate_frequency_domain(motion[ok], fs, order=order, highpass_hz=highpass_hz)

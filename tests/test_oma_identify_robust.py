@@ -242,3 +242,21 @@ def test_output_only_names_the_short_record_and_checks_the_pose(tmp_path):
     moved = _replace(rec, joints_deg=rec.joints_deg + np.array([0, 5.0, 0, 0, 0, 0]))
     with pytest.raises(RecordError, match=r"robot\.joints_deg: expected the pose of .*joint 2 differs by 5\.0 deg"):
         identify_output_only([rec, moved])
+
+
+def test_a_dead_accelerometer_channel_is_read_as_not_recorded():
+    """A Z accelerometer channel that reads 0 throughout (a dead sensor, a cable off): before
+    session 23 its integrated zero displacement was taken as a measured axis (the H1 fit failed on
+    it and a warning read it as a sensor of enormous noise, untrusted); now it is taken as not
+    recorded, the same model as from the record without that channel."""
+    rec = synthetic_record(duration_s=20.0, rng=0, spindle_rpm=2700.0, output="acceleration", runout_m=None)
+    iz = [i for i, c in enumerate(rec.channels) if c.quantity == "acceleration" and c.axis == "Z"][0]
+    data = rec.data.copy()
+    data[iz] = 0.0
+    dead = identify([replace(rec, data=data)])
+    keep = [i for i in range(len(rec.channels)) if i != iz]
+    ref = identify([replace(rec, channels=tuple(rec.channels[i] for i in keep), data=rec.data[keep])])
+    np.testing.assert_allclose(dead.model.natural_frequency_hz, ref.model.natural_frequency_hz, rtol=1e-12)
+    np.testing.assert_allclose(dead.model.stiffness_N_m, ref.model.stiffness_N_m, rtol=1e-12)
+    assert dead.trusted == ref.trusted
+    assert any(w.startswith("Z: no tool-tip motion along Z") for w in dead.warnings)
