@@ -531,6 +531,22 @@ def test_a_posterior_that_predicts_worse_than_its_prior_says_so(problem, monkeyp
     assert len(msg) == 1 and f"{res.accuracy_after:.2f} against {res.accuracy_before:.2f}" in msg[0]
 
 
+def test_marks_all_on_one_side_of_the_limit_say_so(problem):
+    """Every mark stable (or every mark chatter) bounds the limit from one side only: the warning
+    names the side; cuts on both sides give no such warning."""
+    cuts, table, _ = _zoa_problem(problem, 20, 25, 0.0)   # 18 stable, 2 chatter
+    both = learn(problem.setup, problem.prior, cuts, free=("frequency", "stiffness"), table=table,
+                 n_particles=300, seed=4, validate=0)
+    assert {STABLE, CHATTER} <= set(cuts.outcome.tolist())
+    assert not any("every marked cut" in w for w in both.warnings)
+    for mark, side in ((STABLE, "below"), (CHATTER, "above")):
+        one = replace(cuts, outcome=np.full(cuts.n_cuts, mark))
+        res = learn(problem.setup, problem.prior, one, free=("frequency", "stiffness"), table=table,
+                    n_particles=300, seed=4, validate=0)
+        msg = [w for w in res.warnings if "every marked cut" in w]
+        assert len(msg) == 1 and f"from {side} only" in msg[0] and f"({cuts.n_cuts})" in msg[0]
+
+
 def test_a_stepped_design_is_not_called_worse_than_the_prior(problem):
     """A shop's stepped design on an exactly specified model with clean marks: 4 speeds, the depth
     raised x1.25 until the first chatter (0.5 D down; the truth the prior's table value, 1 % off

@@ -459,6 +459,16 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                             "integrates their own deviations out)." + told)
     for name in post.unpinned():
         warnings.append(f"the cuts do not pin down {name}: its posterior sd is still above 80 % of the prior's")
+    # marks all on one side of the limit bound it from that side only: where it lies beyond them is
+    # the prior's and the share of wrong marks' (session 23: 12 cuts of the example all marked
+    # stable doubled the damping's posterior mean, with no word of why)
+    marked = ((cuts.outcome == STABLE) | (cuts.outcome == CHATTER)) & (cuts.weight > 0)
+    if marked.sum() >= 1 and np.all(cuts.outcome[marked] == cuts.outcome[marked][0]):
+        stable_all = cuts.outcome[marked][0] == STABLE
+        warnings.append(f"every marked cut is {'stable' if stable_all else 'chatter'} ({int(marked.sum())}): they bound "
+                        f"the stability limit from {'below' if stable_all else 'above'} only, and how far "
+                        f"{'above' if stable_all else 'below'} them it lies comes from the prior; cut "
+                        f"{'deeper' if stable_all else 'shallower'} to find it (--suggest-for boundary proposes where)")
     acc_min = min((min(r.acceptance) for r in runs if r.acceptance), default=1.0)
     if acc_min < 0.02:
         warnings.append(f"the sampler's acceptance fell to {acc_min:.3f}: the posterior may be under-explored")
