@@ -189,6 +189,15 @@ def _signals_field(record: Record) -> str:
     return "signals" if record.path is not None else f"record {record.name or ''}".strip() + " signals"
 
 
+def constant_rows(y) -> np.ndarray:
+    """Which rows of ``y`` (channels, samples) are recorded (not all NaN) and never change: a motion
+    channel that reads the same throughout (a dead sensor, a cable off), shape (channels,)."""
+    y = np.asarray(y, dtype=float)
+    out = ~np.all(np.isnan(y), axis=1)
+    out[out] = np.ptp(y[out], axis=1) == 0
+    return out
+
+
 def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSignals:
     """Force and displacement of a record inside its cut window, SI.
 
@@ -226,8 +235,7 @@ def prepare_record(record: Record, *, highpass_hz: float = 1.0) -> PreparedSigna
         # a velocity or acceleration channel that never moves is a dead sensor (a cable off), not a
         # tool at rest: as not recorded (session 23: an all-zero Z accelerometer had been read as a
         # sensor of enormous noise). A constant displacement is a tracker's rounding: kept
-        with np.errstate(invalid="ignore"):
-            motion[np.ptp(motion, axis=1) == 0] = np.nan
+        motion[constant_rows(motion)] = np.nan
         ok = ~np.all(np.isnan(motion), axis=1)
         integrated = np.full_like(motion, np.nan)
         integrated[ok] = integrate_frequency_domain(motion[ok], fs, order=order, highpass_hz=highpass_hz)

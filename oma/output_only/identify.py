@@ -20,7 +20,7 @@ from .._identify_checks import check_same_pose
 from ..errors import RecordError
 from ..modal import ModalModel
 from ..record import Record
-from ..signals import window_slice
+from ..signals import constant_rows, window_slice
 from ..timefit import resolved_band_hz
 from .background import (ANISOTROPY_LOG_SD, BackgroundLevel, background_level, consistent_up_to_colour,
                          scale_by_background)
@@ -230,8 +230,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     for r, y in zip(records, signals):
         # a channel that never moves carries nothing (a dead sensor, a cable off): as not recorded
         # (session 23: an all-zero Z channel had raised an internal error in the channel scaling)
-        dead = ~np.all(np.isnan(y), axis=1)
-        dead[dead] = np.ptp(y[dead], axis=1) == 0
+        dead = constant_rows(y)
         for a in np.flatnonzero(dead):
             warnings.append(f"{r.name or 'record'}: the {'XYZ'[a]} motion channel is constant (a dead sensor or a "
                             "disconnected cable?): taken as not recorded")

@@ -348,7 +348,7 @@ def _fit(residuals, sample_rate_hz, freq_hz, damping, directions, direction_se_r
     p = optimize.minimize(objective, p0_, jac=True, method="BFGS", options={"gtol": 1e-6, "maxiter": 500}).x
     if per_block(p) is None:
         return None
-    scales = np.exp(np.concatenate([[0.0], p[n_s + n - 1 + n_t:]])) if n_c else np.ones(l)
+    scales = parts(p)[1]
     return _Fit(p, per_block, posterior, prior_prec, spectrum, turned(p), scales, hat, n_s, wr, w_bins, s_hat,
                 posterior_and_gradient)
 

@@ -419,7 +419,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 if chain_k is None:
                     break
             if chain_k is not None:
-                dropped[np.setdiff1d(g, g_k)] = left_band[np.setdiff1d(g, g_k)] = True
+                gone = np.setdiff1d(g, g_k)
+                dropped[gone] = left_band[gone] = True
                 g, ug, (fits, fit) = g_k, ug_k, chain_k
         f, z, u, fun, px, mod = fit
         if add_missing is not None and not np.any(np.abs(f - f0[g]) > hw[g] / 2):

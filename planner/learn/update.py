@@ -184,6 +184,11 @@ def _accuracy(p_stable: np.ndarray, cuts: CutTable) -> float:
     return float(np.average(right, weights=cuts.weight[sel]))
 
 
+def _weighted_marks(cuts: CutTable) -> np.ndarray:
+    """The cuts marked stable or chatter with a weight above 0 (the marks that are evidence)."""
+    return ((cuts.outcome == STABLE) | (cuts.outcome == CHATTER)) & (cuts.weight > 0)
+
+
 def _paired_log_score(p_post: np.ndarray, p_prior: np.ndarray, cuts: CutTable, mislabel: float
                       ) -> tuple[float, float, float]:
     """Mean log score per stable/chatter mark of two predictions (P(stable) of each cut: the
@@ -194,7 +199,7 @@ def _paired_log_score(p_post: np.ndarray, p_prior: np.ndarray, cuts: CutTable, m
     costs at most ``log eps``, as in the likelihood, and one wrong mark does not decide the
     comparison. Marks are weighted by their weights. NaN when fewer than 3 marks or no spread.
     """
-    sel = ((cuts.outcome == STABLE) | (cuts.outcome == CHATTER)) & (cuts.weight > 0)
+    sel = _weighted_marks(cuts)
     if sel.sum() < 3:
         return float("nan"), float("nan"), float("nan")
     eps = float(mislabel)
@@ -462,13 +467,13 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     # marks all on one side of the limit bound it from that side only: where it lies beyond them is
     # the prior's and the share of wrong marks' (session 23: 12 cuts of the example all marked
     # stable doubled the damping's posterior mean, with no word of why)
-    marked = ((cuts.outcome == STABLE) | (cuts.outcome == CHATTER)) & (cuts.weight > 0)
-    if marked.sum() >= 1 and np.all(cuts.outcome[marked] == cuts.outcome[marked][0]):
-        stable_all = cuts.outcome[marked][0] == STABLE
-        warnings.append(f"every marked cut is {'stable' if stable_all else 'chatter'} ({int(marked.sum())}): they bound "
-                        f"the stability limit from {'below' if stable_all else 'above'} only, and how far "
-                        f"{'above' if stable_all else 'below'} them it lies comes from the prior; cut "
-                        f"{'deeper' if stable_all else 'shallower'} to find it (--suggest-for boundary proposes where)")
+    marked = _weighted_marks(cuts)
+    if marked.any() and np.all(cuts.outcome[marked] == cuts.outcome[marked][0]):
+        mark, side, beyond, way = (("stable", "below", "above", "deeper") if cuts.outcome[marked][0] == STABLE
+                                   else ("chatter", "above", "below", "shallower"))
+        warnings.append(f"every marked cut is {mark} ({int(marked.sum())}): they bound the stability limit from "
+                        f"{side} only, and how far {beyond} them it lies comes from the prior; cut {way} to find it "
+                        "(--suggest-for boundary proposes where)")
     acc_min = min((min(r.acceptance) for r in runs if r.acceptance), default=1.0)
     if acc_min < 0.02:
         warnings.append(f"the sampler's acceptance fell to {acc_min:.3f}: the posterior may be under-explored")
