@@ -103,7 +103,10 @@ def _initial(mod: _Model, f, z, u, x):
     if mod.q:
         v = np.concatenate([v, mod.fx], axis=2)
     mq = m + mod.q
-    pk = x[:, :, None] * x[:, None, :].conj()
+    if mod.weight is None:
+        pk = x[:, :, None] * x[:, None, :].conj()
+    else:   # blocks: their mean periodogram matrix, each block's equations weighted by its bins
+        pk = (x @ np.conj(np.swapaxes(x, 1, 2))) / mod.weight[:, None, None]
     cols = []
     pairs = [(r, s) for r in range(mq) for s in range(r, mq) if mod.coherent or not (r < m <= s)]
     for r, s in pairs:
@@ -116,8 +119,12 @@ def _initial(mod: _Model, f, z, u, x):
                 e = np.zeros((l, l)); e[a, b] = e[b, a] = 1.0
                 cols.append(np.broadcast_to(e, pk.shape).ravel())
     amat = np.array(cols).T
+    rhs = pk.ravel()
+    if mod.weight is not None:
+        root = np.repeat(np.sqrt(mod.weight), l * l)
+        amat, rhs = amat * root[:, None], rhs * root
     amat = np.vstack([amat.real, amat.imag])
-    rhs = np.concatenate([pk.ravel().real, pk.ravel().imag])
+    rhs = np.concatenate([rhs.real, rhs.imag])
     coef = np.linalg.lstsq(amat, rhs, rcond=None)[0]
     c = np.zeros((mq, mq)); n = np.zeros((l, l))
     k = 0
@@ -196,7 +203,7 @@ def _finish(p, mod: _Model, x, *, max_iter: int = FINISH_ITER):
 
 
 def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, previous=None, tails=None,
-               slope=False):
+               slope=False, weight=None):
     """ML fit of one group of modes on the bins ``w``, ``x``: frequencies, damping, unit
     directions (m, l), the negative log-likelihood, the parameters and the model; None when the
     fit fails or is worse than its start. ``residuals``: the out-of-band modes' tails as residual
@@ -207,11 +214,13 @@ def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, pre
     a constant background. ``previous``: (model, parameters) of a fit of a model nested in this
     one, whose optimum starts this fit (:func:`_nested_start`). ``slope``: the input's level
     varies as ``(w / w_c)^beta`` across the band, ``beta`` fitted with the rest (a coloured
-    background force; :mod:`oma.output_only.whittle`). Fisher scoring
+    background force; :mod:`oma.output_only.whittle`). ``weight``: the bins each ``w`` stands for,
+    ``x`` then the roots of their summed periodogram matrices (:mod:`oma.output_only.blocks`).
+    Fisher scoring
     (Levenberg-damped) from linear least squares: on the benchmark records it reached the best
     optimum of the tried schemes (L-BFGS-B first stalled in the ill-conditioned covariance
     factors) at a third of the cost."""
-    m, l = f0.size, x.shape[1] if x.ndim == 2 else 0
+    m, l = f0.size, x.shape[1] if x.ndim >= 2 else 0
     if residuals == "known":
         fx = tails if tails is not None else np.zeros((w.size, l, 0), dtype=complex)
         noise = True
@@ -220,8 +229,8 @@ def _fit_group(w, x, f0, z0, u0, derivative, *, max_iter=40, residuals=True, pre
         noise = not residuals or derivative == 1
     mod = _Model(m, l, w, None, fx, noise,
                  (np.asarray(f0, dtype=float), np.asarray(z0, dtype=float)), coherent=residuals != "background",
-                 slope=bool(slope))
-    if w.size * l < 4 * _n_params(mod):
+                 slope=bool(slope), weight=weight)
+    if mod.n_bins * l < 4 * _n_params(mod):
         return None
     gain = w ** (2 * derivative)
     mod = mod._replace(gain=gain / np.mean(gain))

@@ -120,8 +120,14 @@ def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0,
     s = _spectrum(p, mod)[-1]
     gain = _gain(pp, mod)
     sinv = np.linalg.inv(s)
-    y = (sinv @ x[:, :, None])[..., 0]
-    outer = np.real(y[:, :, None] * y[:, None, :].conj())
+    if mod.weight is None:
+        y = (sinv @ x[:, :, None])[..., 0]
+        outer = np.real(y[:, :, None] * y[:, None, :].conj())
+        n = np.ones(w.size)
+    else:   # blocks: ``S^-1 X X^H S^-1`` is the sum of their bins' ``S^-1 x x^H S^-1``
+        y = sinv @ x
+        outer = np.real(y @ np.conj(np.swapaxes(y, 1, 2)))
+        n = mod.weight
     sinv_r = np.real(sinv)
     zc = float(np.clip(np.median(pp.z), 0.01, 0.1))
     lo = max(band[0], within[0], w.min() / (2 * np.pi)) / (1.0 - 2.0 * zc)
@@ -131,11 +137,12 @@ def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0,
     fcs = np.linspace(lo, hi, n_freq)
     d = _response(fcs, np.full(n_freq, zc), np.full(n_freq, zc), w)            # (K, n_freq)
     a = gain[:, None] / np.abs(d) ** 2
-    a = a / a.sum(axis=0)
+    # per bin: a block of n bins weighs n times in the normalisation, in B and in n_eff
+    a = a / (a.sum(axis=0) if mod.weight is None else n @ a)
     l = outer.shape[1]
     amat = (a.T @ outer.reshape(w.size, l * l)).reshape(n_freq, l, l)
-    bmat = (a.T @ sinv_r.reshape(w.size, l * l)).reshape(n_freq, l, l)
-    return _strongest_candidate(fcs, a, amat, bmat, zc)
+    bmat = ((n[:, None] * a).T @ sinv_r.reshape(w.size, l * l)).reshape(n_freq, l, l)
+    return _strongest_candidate(fcs, np.sqrt(n)[:, None] * a, amat, bmat, zc)
 
 
 def _strongest_candidate(fcs, a, amat, bmat, zc):

@@ -98,15 +98,18 @@ def _model_spectrum(v, c, n, gain):
     return s
 
 
-def _likelihood_terms(v, c, n, gain, x, u, d, log_w, min_ratio):
+def _likelihood_terms(v, c, n, gain, x, weight, u, d, log_w, min_ratio):
     """The sums the likelihood and its gradient need, in one pass over the bins.
 
-    With ``S = gain V C V^H + N``, ``y = S^-1 x`` and ``G = S^-1 - y y^H`` per bin: ``logdet S``
-    and ``x^H S^-1 x`` summed, ``Re sum gain V^H G V`` (mq, mq), ``Re sum G`` (l, l), per bin
-    ``b.u`` with ``b = gain (C V^H G)[:m]`` (K, m), ``sum b / d`` (m, l) and
-    ``sum log_w tr(Re(gain V^H G V) C)``. ``ok`` False where a bin's ``S`` is not positive definite.
+    With ``S = gain V C V^H + N``, per bin (or block of ``weight`` bins whose summed periodogram
+    matrix is ``X X^H``, ``x`` (K, l, r): a bin's is its DFT vector, r = 1) ``Y = S^-1 X`` and
+    ``G = weight S^-1 - Y Y^H``: ``weight logdet S`` and ``tr(X^H S^-1 X)`` summed,
+    ``Re sum gain V^H G V`` (mq, mq), ``Re sum G`` (l, l), per bin ``b.u`` with
+    ``b = gain (C V^H G)[:m]`` (K, m), ``sum b / d`` (m, l) and ``sum log_w tr(Re(gain V^H G V) C)``.
+    ``ok`` False where a bin's ``S`` is not positive definite.
     """
     n_k, l, mq = v.shape
+    n_r = x.shape[2]
     m = u.shape[0]
     s = _model_spectrum(v, c, n, gain)
     linv = np.zeros((n_k, l, l), dtype=np.complex128)
@@ -116,8 +119,8 @@ def _likelihood_terms(v, c, n, gain, x, u, d, log_w, min_ratio):
     bu = np.zeros((n_k, m), dtype=np.complex128)
     gv = np.zeros((m, l), dtype=np.complex128)
     logdet, quad, slope = 0.0, 0.0, 0.0
-    w = np.empty(l, dtype=np.complex128)
-    y = np.empty(l, dtype=np.complex128)
+    w = np.empty((l, n_r), dtype=np.complex128)
+    y = np.empty((l, n_r), dtype=np.complex128)
     sinv = np.empty((l, l), dtype=np.complex128)
     gmat = np.empty((l, l), dtype=np.complex128)
     gv_ = np.empty((l, mq), dtype=np.complex128)     # G V
@@ -125,28 +128,34 @@ def _likelihood_terms(v, c, n, gain, x, u, d, log_w, min_ratio):
     for k in range(n_k):
         if not _cholesky_inverse(s, k, min_ratio, linv, diag):
             return False, 0.0, 0.0, ar, gr, bu, gv, 0.0
+        wk = weight[k]
         for a in range(l):
-            logdet += 2.0 * math.log(diag[k, a])
-        for a in range(l):
-            acc = 0.0j
-            for b in range(a + 1):
-                acc += linv[k, a, b] * x[k, b]
-            w[a] = acc
-            quad += acc.real ** 2 + acc.imag ** 2
+            logdet += wk * 2.0 * math.log(diag[k, a])
+        for t in range(n_r):
+            for a in range(l):
+                acc = 0.0j
+                for b in range(a + 1):
+                    acc += linv[k, a, b] * x[k, b, t]
+                w[a, t] = acc
+                quad += acc.real ** 2 + acc.imag ** 2
         for a in range(l):
             for b in range(l):
                 acc = 0.0j
                 for p in range(max(a, b), l):
                     acc += np.conj(linv[k, p, a]) * linv[k, p, b]
                 sinv[a, b] = acc
-        for a in range(l):
-            acc = 0.0j
-            for p in range(l):
-                acc += np.conj(linv[k, p, a]) * w[p]
-            y[a] = acc
+        for t in range(n_r):
+            for a in range(l):
+                acc = 0.0j
+                for p in range(l):
+                    acc += np.conj(linv[k, p, a]) * w[p, t]
+                y[a, t] = acc
         for a in range(l):
             for b in range(l):
-                g_ab = sinv[a, b] - y[a] * np.conj(y[b])
+                yy = 0.0j
+                for t in range(n_r):
+                    yy += y[a, t] * np.conj(y[b, t])
+                g_ab = wk * sinv[a, b] - yy
                 gmat[a, b] = g_ab
                 gr[a, b] += g_ab.real
         for a in range(l):

@@ -17,7 +17,9 @@ Schoukens, MSSP 21 (2007). The input need not be white across a group's band: by
 (``input_slope``) ``C`` is ``C (w / w_c)^beta`` there, one slope ``beta`` per group (session 15);
 the slope reported (``slopes``) is that of the fit with the constant background's sign free,
 unbiased where the fit's own is not (session 16). The bins within 0.1 Hz of a regressed milling
-line are left out (the regression notches them).
+line are left out (the regression notches them). A band of many bins (1 000 and more: lightly
+damped modes at hundreds of Hz) is fitted on blocks of adjacent bins pooled where the model
+spectrum is flat across them (:mod:`oma.output_only.blocks`; session 24).
 
 The tails of the modes outside the band are modelled, per group, by a constant ``N`` or (chosen
 by BIC) by the responses of the other modes found, ``u_j / D_j(w)`` at their estimated frequency,
@@ -50,6 +52,7 @@ import numpy as np
 
 from ._ml_fit import _TAIL_PARENT, _finish, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
 from ._ml_inference import _information_se, _input_slope, _missing_mode, _mode_gain, _new_mode_apart
+from .blocks import block_bins, pool
 from .whittle import _fisher, _input_level, _unpack
 
 __all__ = ["refine_modes_ml", "RefinedModes"]
@@ -298,9 +301,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         group[g] = min(g)
     only = None if fit_only is None else np.asarray(fit_only, dtype=bool)
 
-    def fit_chain(g, w, x, ug, gone=()):
+    def fit_chain(g, w, x, ug, blocks, gone=()):
         """The group's fits along the nested tail models; the chosen one by BIC; None if none.
-        ``gone``: modes outside ``g`` that are no tails of it, besides those dropped (no modes)."""
+        ``blocks``: the pooling of the bins ``w`` stand for (None: none). ``gone``: modes outside
+        ``g`` that are no tails of it, besides those dropped (no modes)."""
         fits, by_kind = [], {}
         for r in kinds:
             # each richer model started from the optimum of the model it extends (same spectrum,
@@ -319,7 +323,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     continue  # no mode outside the group: the constant background is the same model
                 tails = _known_tails(w, (f0[others], z0[others], u0[:, others]), scale)
             cands = [_fit_group(w, x, f0[g], z0[g], st, derivative, max_iter=max_iter, residuals=r, previous=prev,
-                                tails=tails, slope=input_slope)
+                                tails=tails, slope=input_slope, weight=None if blocks is None else blocks.n)
                      for st in starts]
             cands = [ft for ft in cands if ft is not None]
             if cands:
@@ -328,19 +332,25 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 by_kind[r] = (ft[5], ft[4])
         if not fits:
             return None
-        # the tail model with the smallest BIC
-        return fits, min(fits, key=lambda ft: ft[3] + 0.5 * _n_params(ft[5]) * np.log(w.size))
+        # the tail model with the smallest BIC (its n the bins, pooled or not)
+        return fits, min(fits, key=lambda ft: ft[3] + 0.5 * _n_params(ft[5]) * np.log(ft[5].n_bins))
 
     def group_bins(g, band):
         """The band's bins, its DFT vectors in channels scaled to unit power in the band (a mode's
         direction there is not dominated by a channel that is loud elsewhere in the record, where
-        a small error of the starting direction would be magnified), the scale, and the group's
-        starting directions in those channels."""
+        a small error of the starting direction would be magnified), the scale, the group's
+        starting directions in those channels, and the blocks the bins are pooled into where
+        the band holds many (:mod:`oma.output_only.blocks`, laid out around every mode's start:
+        then ``w`` are the blocks' and the DFT vectors the roots of their periodogram matrices)."""
         w, x = _band_bins(ffts, *band, lines, line_guard_hz)
         scale = np.sqrt(np.mean(np.abs(x) ** 2, axis=0)) if x.size else np.ones(l)
         scale = np.where(scale > 0, scale, 1.0)
         ug = u0[:, g] / scale[:, None]
-        return w, x / scale, scale, ug / np.linalg.norm(ug, axis=0)
+        x = x / scale
+        blocks = block_bins(w, f0, z0)
+        if blocks is not None:
+            w, x = blocks.w, pool(blocks, x)
+        return w, x, scale, ug / np.linalg.norm(ug, axis=0), blocks
 
     for g in groups:
         g = np.array(g)
@@ -348,10 +358,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             continue
         gid = int(group[g[0]])
         band = (lo[g].min(), hi[g].max())
-        w, x, scale, ug = group_bins(g, band)
+        w, x, scale, ug, blocks = group_bins(g, band)
         if x.size == 0:
             continue
-        chain = fit_chain(g, w, x, ug)
+        chain = fit_chain(g, w, x, ug, blocks)
         if chain is None:
             continue
         fits, fit = chain
@@ -366,7 +376,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     continue
                 gain = _mode_gain(fits, fit, j, x, refit=without[j])
                 if gain is not None:
-                    evidence[int(k)] = (gain, 0.5 * (l + 2) * np.log(w.size))
+                    evidence[int(k)] = (gain, 0.5 * (l + 2) * np.log(fit[5].n_bins))
             # one mode goes, refitted without (the group's one refit): a mode the fit moved out of
             # its band onto another's start, whose group refits without it keeping the others in
             # theirs, is a second candidate for that mode's peak whatever it gains there (two modes
@@ -393,7 +403,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 keep = np.arange(g.size) != j
                 weak[j] = True
                 dropped[g[weak]] = True
-                chain = fit_chain(g[keep], w, x, ug[:, keep]) if keep.any() else None
+                chain = fit_chain(g[keep], w, x, ug[:, keep], blocks) if keep.any() else None
                 duplicated[g[weak]] = duplicate[j]
                 g, ug = g[~weak], ug[:, ~weak]
                 if chain is None:
@@ -415,7 +425,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     chain_k = None
                     break
                 g_k, ug_k = g_k[~left], ug_k[:, ~left]
-                chain_k = fit_chain(g_k, w, x, ug_k, gone=np.setdiff1d(g, g_k))
+                chain_k = fit_chain(g_k, w, x, ug_k, blocks, gone=np.setdiff1d(g, g_k))
                 if chain_k is None:
                     break
             if chain_k is not None:
@@ -441,14 +451,15 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     hw[-1] = max(half_width * z0[-1] * f0[-1], min_half_width_hz)
                     lo[-1], hi[-1] = f0[-1] - hw[-1], f0[-1] + hw[-1]
                     band_c = (min(band[0], lo[-1]), max(band[1], hi[-1]))
-                    w_c, x_c, scale_c, ug_c = group_bins(g_c, band_c)
-                    chain_c = fit_chain(g_c, w_c, x_c, ug_c)
+                    w_c, x_c, scale_c, ug_c, blocks_c = group_bins(g_c, band_c)
+                    chain_c = fit_chain(g_c, w_c, x_c, ug_c, blocks_c)
                     if chain_c is not None and not band_c[0] <= chain_c[1][0][-1] <= band_c[1]:
                         chain_c = None   # the fit took it out of the band: not a mode of this band
                     if chain_c is None or abs(chain_c[1][0][-1] - f0[-1]) <= hw[-1] / 2:
                         break
                     f0[-1], z0[-1] = chain_c[1][0][-1], float(np.clip(chain_c[1][1][-1], 0.005, 0.2))
-                gain, penalty = None, 0.5 * (l + 2) * np.log(max(w_c.size, 1))
+                gain, penalty = None, 0.5 * (l + 2) * np.log(max(w_c.size if blocks_c is None else
+                                                                 int(blocks_c.n.sum()), 1))
                 if chain_c is not None:
                     fits_c, fit_c = chain_c
                     gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c)
@@ -466,7 +477,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                         reps = np.concatenate([reps, np.full((3, reps.shape[1], 1), np.nan)], axis=2)
                     if evidence is not None:
                         evidence[int(f0.size - 1)] = (gain, penalty)
-                    g, band, w, x, scale, ug, fits, fit = g_c, band_c, w_c, x_c, scale_c, ug_c, fits_c, fit_c
+                    g, band, w, x, scale, ug, blocks, fits, fit = \
+                        g_c, band_c, w_c, x_c, scale_c, ug_c, blocks_c, fits_c, fit_c
                     f, z, u, fun, px, mod = fit
                 else:
                     f0, z0, u0 = f0[:-1], z0[:-1], u0[:, :-1]
@@ -498,7 +510,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             # every replicate starts from the full-record optimum, so from the same matrix
             jm = _fisher(px, mod)
             for s_i, sp in enumerate(gapped):
-                xj = _band_bins(sp, *band, lines, line_guard_hz)[1] / scale[None, :]
+                xj = _band_bins(sp, *band, lines, line_guard_hz)[1] / scale
+                xj = xj if blocks is None else pool(blocks, xj)
                 pj, vj = _scoring(px, mod, xj, max_iter=JACKKNIFE_ITER, warm=0, jm=jm)
                 if not vj < 1e30:
                     continue

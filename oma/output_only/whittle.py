@@ -35,7 +35,9 @@ class _Model(NamedTuple):
     lower triangle (``signed_background``: ``N`` symmetric, of either sign where the model spectrum
     stays positive definite; such a model is made from a fit's optimum by
     :func:`oma.output_only._ml_fit._signed` only) instead of its Cholesky factor's (``N`` positive
-    semi-definite)."""
+    semi-definite), and the bins each of ``w`` stands for (``weight`` (K,): pooled blocks,
+    :mod:`oma.output_only.blocks`, whose data are the roots ``X`` (K, l, l) of their summed
+    periodogram matrices; None: each ``w`` one bin, whose data are its DFT vector, (K, l))."""
 
     m: int
     l: int
@@ -47,6 +49,12 @@ class _Model(NamedTuple):
     coherent: bool = True
     slope: bool = False
     signed_background: bool = False
+    weight: np.ndarray | None = None
+
+    @property
+    def n_bins(self) -> int:
+        """The periodogram bins the model is fitted to (the blocks' bins where pooled)."""
+        return int(self.w.size if self.weight is None else round(float(np.sum(self.weight))))
 
     @property
     def w_c(self) -> float:
@@ -186,9 +194,20 @@ def _whitener(s):
 MAX_CONDITION_ROOT = 1e-7
 
 
+def _roots(x) -> np.ndarray:
+    """The data as roots of the bins' (or blocks') periodogram matrices, (K, l, r): a bin's DFT
+    vectors (K, l) as single columns."""
+    return x[:, :, None] if x.ndim == 2 else x
+
+
+def _weights(mod: _Model) -> np.ndarray:
+    """The bins each of the model's ``w`` stands for (K,): ones where not pooled."""
+    return np.ones(mod.w.size) if mod.weight is None else np.asarray(mod.weight, dtype=float)
+
+
 def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     """Whittle negative log-likelihood and its gradient (analytic) in the parameters ``p``;
-    ``per_bin``: the gradient of each bin's term instead, shape (K, n_params) (the scores whose
+    ``per_bin``: the gradient of each bin's (or block's) term instead, shape (K, n_params) (the scores whose
     outer products give the sandwich covariance; without the slope's prior :data:`SLOPE_PRIOR_SD`,
     which is no bin's term)."""
     if not per_bin:
@@ -201,15 +220,21 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     if white is None:
         return 1e30, np.zeros((x.shape[0], p.size))
     linv, diag = white
-    logdet = 2.0 * np.sum(np.log(diag))
     # the inverse through the Cholesky factor: ``S^-1 = L^-H L^-1`` stays positive definite where
     # ``inv(S)`` of a nearly singular spectrum does not (a refit once reached a quadratic form of
     # -1.9e12, "gaining" that much likelihood by dropping a true mode); the form is ``|L^-1 x|^2``
-    w = (linv @ x[:, :, None])[..., 0]
     sinv = np.conj(np.swapaxes(linv, 1, 2)) @ linv
-    y = (sinv @ x[:, :, None])[..., 0]
+    if mod.weight is None:
+        logdet = 2.0 * np.sum(np.log(diag))
+        w = (linv @ x[:, :, None])[..., 0]
+        y = (sinv @ x[:, :, None])[..., 0]
+        gmat = sinv - y[:, :, None] * np.conj(y)[:, None, :]               # dL/dS^T, Hermitian
+    else:   # blocks: ``n log det S + |L^-1 X|^2``, ``G = n S^-1 - Y Y^H``
+        logdet = 2.0 * np.sum(mod.weight[:, None] * np.log(diag))
+        w = linv @ x
+        y = sinv @ x
+        gmat = mod.weight[:, None, None] * sinv - y @ np.conj(np.swapaxes(y, 1, 2))
     val = float(logdet + np.sum(np.abs(w) ** 2))
-    gmat = sinv - y[:, :, None] * np.conj(y)[:, None, :]                   # dL/dS^T, Hermitian
     a = gain[:, None, None] * (vh @ gmat @ v)                              # (K, m+q, m+q)
     b = gain[:, None, None] * (c[None] @ vh @ gmat)[:, :m]                 # (K, m, l)
     bu = np.einsum("kra,ra->kr", b, u)                                     # (K, m)
@@ -263,8 +288,8 @@ def _nll_sum(p, mod: _Model, x):
     q = mod.w[:, None] / (2 * np.pi * pp.f[None, :])
     d, v = _columns(pp, mod)
     ok, logdet, quad, ar, gr, bu, gv, slope = compiled("_likelihood_terms")(
-        np.ascontiguousarray(v), pp.c, pp.n, np.ascontiguousarray(_gain(pp, mod), dtype=float), np.ascontiguousarray(x),
-        np.ascontiguousarray(pp.u), np.ascontiguousarray(d), np.ascontiguousarray(mod.log_w if mod.slope
+        np.ascontiguousarray(v), pp.c, pp.n, np.ascontiguousarray(_gain(pp, mod), dtype=float),
+        np.ascontiguousarray(_roots(x)), _weights(mod), np.ascontiguousarray(pp.u), np.ascontiguousarray(d), np.ascontiguousarray(mod.log_w if mod.slope
                                                                                else np.zeros(mod.w.size)),
         MAX_CONDITION_ROOT)
     if not ok:
@@ -314,6 +339,8 @@ def _fisher(p, mod: _Model):
         np.ascontiguousarray(du.reshape(m * l, l), dtype=complex), np.sqrt(_gain(pp, mod)),
         np.ascontiguousarray(tm[0]), np.ascontiguousarray(tm[1]), np.ascontiguousarray(tl[0]),
         np.ascontiguousarray(yn, dtype=complex).reshape(tl[0].size, l), 0.5 * mod.log_w, bool(mod.slope), white[0])
+    if mod.weight is not None:   # a block's information is its bins' (its spectrum is theirs)
+        r *= np.repeat(np.sqrt(mod.weight), l * l)[:, None]
     jm = r.T @ r
     if mod.slope:
         jm[-1, -1] += 1.0 / SLOPE_PRIOR_SD ** 2     # the slope's prior
