@@ -10,6 +10,7 @@ slope ``beta`` across the group's band: the input covariance at ``w`` is ``C (w 
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -19,8 +20,15 @@ from ._whittle_kernels import compiled
 __all__: list[str] = []
 
 
+@functools.lru_cache(maxsize=None)
 def _tril(n):
-    return np.tril_indices(n)
+    """The lower triangle's indices of an ``n x n`` matrix (read-only: shared by every call)."""
+    rows, cols = np.tril_indices(n)
+    rows.flags.writeable = cols.flags.writeable = False
+    return rows, cols
+
+
+_NO_ENTRIES = _tril(0)
 
 
 class _Model(NamedTuple):
@@ -112,11 +120,18 @@ MAX_SLOPE = 20.0
 def _free_c(mod: _Model):
     """Free entries of the Cholesky factor of ``C``: all of its lower triangle, or without the
     block coupling the residual terms to the modes (then ``C`` is block diagonal)."""
-    tm = _tril(mod.m + mod.q)
-    if mod.coherent or mod.q == 0:
+    return _free_entries(mod.m, mod.q, mod.coherent or mod.q == 0)
+
+
+@functools.lru_cache(maxsize=None)
+def _free_entries(m: int, q: int, coupled: bool):
+    tm = _tril(m + q)
+    if coupled:
         return tm
-    keep = ~((tm[0] >= mod.m) & (tm[1] < mod.m))
-    return tm[0][keep], tm[1][keep]
+    keep = ~((tm[0] >= m) & (tm[1] < m))
+    rows, cols = tm[0][keep], tm[1][keep]
+    rows.flags.writeable = cols.flags.writeable = False
+    return rows, cols
 
 
 def _unpack(p, mod: _Model) -> _Params:
@@ -129,7 +144,7 @@ def _unpack(p, mod: _Model) -> _Params:
     vraw = p[i:i + m * l].reshape(m, l); i += m * l
     norm = np.maximum(np.linalg.norm(vraw, axis=1), 1e-300)
     tm = _free_c(mod)
-    tl = _tril(l) if mod.noise else (np.zeros(0, dtype=int), np.zeros(0, dtype=int))
+    tl = _tril(l) if mod.noise else _NO_ENTRIES
     lc = np.zeros((mq, mq)); lc[tm] = p[i:i + tm[0].size]; i += tm[0].size
     ln = np.zeros((l, l)); ln[tl] = p[i:i + tl[0].size]; i += tl[0].size
     n = ln + np.tril(ln, -1).T if mod.signed_background else ln @ ln.T
