@@ -312,11 +312,26 @@ def summarise_peers(case, peers, model):
 
 
 # ------------------------------------------------------------------------------------------ Hurco
-def hurco(max_files=None, alias_up_to=4.0):
+def hurco_record(path):
+    """A Hurco file's cut as a record of accelerations (no force; a nominal tool and cut: nothing
+    is scaled), or None when the spindle speed changes during it (one speed per record)."""
     from oma.cutting import Cut, Tool
     from oma.record import Channel, Record
     from planner.diagnosis.hurco import cutting_span, read_hurco_csv
 
+    h = read_hurco_csv(path)
+    if len(h.spindle_rpm) != 1:
+        return None
+    sl = cutting_span(h.acceleration_m_s2, h.sample_rate_hz)
+    acc = np.asarray(h.acceleration_m_s2)[:, sl]
+    tool = Tool(teeth=h.teeth, diameter_m=0.0127)
+    cut = Cut(feed_per_tooth_m=1e-4, radial_depth_m=0.006, milling="down", feed_direction=[1, 0, 0],
+              normal_direction=[0, 1, 0], spindle_rpm=float(h.spindle_rpm[0]))
+    return Record(h.sample_rate_hz, tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ"), acc,
+                  tool, cut, name=path.name)
+
+
+def hurco(max_files=None, alias_up_to=4.0):
     folder = shared_dir() / "data" / "milling-vibration-hurco"
     files = sorted(folder.glob("EBI_*.csv"))[:max_files]
     if not files:
@@ -326,17 +341,11 @@ def hurco(max_files=None, alias_up_to=4.0):
           f"spindle multiples up to {alias_up_to:g} fs removed where they fold into the band ==")
     found = []
     for path in files:
-        h = read_hurco_csv(path)
-        if len(h.spindle_rpm) != 1:
+        rec = hurco_record(path)
+        if rec is None:
             print(f"{path.name}: spindle speed changes during the cut; skipped (one speed per record)")
             continue
-        sl = cutting_span(h.acceleration_m_s2, h.sample_rate_hz)
-        acc = np.asarray(h.acceleration_m_s2)[:, sl]
-        tool = Tool(teeth=h.teeth, diameter_m=0.0127)
-        cut = Cut(feed_per_tooth_m=1e-4, radial_depth_m=0.006, milling="down", feed_direction=[1, 0, 0],
-                  normal_direction=[0, 1, 0], spindle_rpm=float(h.spindle_rpm[0]))
-        rec = Record(h.sample_rate_hz, tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ"), acc,
-                     tool, cut, name=path.name)
+        acc = rec.data
         t0 = time.process_time()
         try:
             res = identify_output_only([rec], band_hz=(20.0, 600.0), alias_up_to=alias_up_to)
@@ -348,7 +357,7 @@ def hurco(max_files=None, alias_up_to=4.0):
         found.append((path.name, m))
         desc = ", ".join(f"{f:.1f} Hz {100 * z:.1f}% (+-{100 * zs:.1f})" for f, z, zs in
                          zip(m.freq_hz, m.damping_ratio, m.damping_se))
-        print(f"{path.name:>40} {h.spindle_rpm[0]:6.0f} rpm {acc.shape[1] / h.sample_rate_hz:5.1f} s "
+        print(f"{path.name:>40} {rec.cut.spindle_rpm:6.0f} rpm {acc.shape[1] / rec.sample_rate_hz:5.1f} s "
               f"{cpu:5.2f} s | {m.n_modes} modes: {desc}")
         if m.rejected_hz.size:
             print(f"{'':>40} rejected as harmonics: {np.round(m.rejected_hz, 1).tolist()}")

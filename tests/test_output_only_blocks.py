@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from frequency_domain_records import modal_superposition
 
 import oma.output_only._ml_fit as ml_fit
 import oma.output_only.blocks as blocks
 import oma.output_only.ml as ml
 from oma.output_only.blocks import block_bins, pool
-from oma.output_only.whittle import _fisher, _Model, _nll, _response
+from oma.output_only.whittle import _fisher, _Model, _nll, _spectrum
 
 FS, DURATION = 2000.0, 15.0
 #: Three overlapping modes of 0.8-2 % at 350-365 Hz (the Hurco files' kind) and a sharp one at 530 Hz:
@@ -92,7 +93,6 @@ def test_with_modes_the_pooled_likelihood_converges_to_the_bins_as_blocks_narrow
     p = _params(2, rng)
     exact = _model(w, 2)
     # data drawn from the model itself (the Whittle likelihood's own distribution)
-    from oma.output_only.whittle import _spectrum
     s = _spectrum(p, exact)[-1]
     chol = np.linalg.cholesky(s)
     x = (chol @ ((rng.standard_normal((w.size, 3)) + 1j * rng.standard_normal((w.size, 3))) / np.sqrt(2))[..., None])[..., 0]
@@ -116,20 +116,6 @@ def test_with_modes_the_pooled_likelihood_converges_to_the_bins_as_blocks_narrow
         assert fine[0] < coarse[0] / 4 and fine[1] < coarse[1] / 2.5
 
 
-def _record(seed):
-    """Accelerations of :data:`MODES` under a white force on each axis, 2 % sensor noise."""
-    rng = np.random.default_rng(seed)
-    n = int(FS * DURATION)
-    f = np.fft.rfftfreq(n, 1 / FS)
-    force = rng.standard_normal((3, f.size)) + 1j * rng.standard_normal((3, f.size))
-    acc = np.zeros((3, f.size), dtype=complex)
-    for fr, z, u in MODES:
-        u = np.asarray(u, dtype=float) / np.linalg.norm(u)
-        acc += u[:, None] * (u @ force)[None, :] / (1 - (f / fr) ** 2 + 2j * z * f / fr) / (2 * np.pi * fr) ** 2
-    x = np.fft.irfft(-(2 * np.pi * f) ** 2 * acc, n=n, axis=1)
-    return x + 0.02 * np.std(x) * rng.standard_normal(x.shape)
-
-
 def test_a_refinement_on_pooled_bins_ends_where_the_bins_do(monkeypatch):
     """The 350-365 Hz group (about 2 000 bins, pooled) refined both ways and each carried to its
     optimum: frequencies and damping within a tenth of their standard errors of each other, the
@@ -138,7 +124,7 @@ def test_a_refinement_on_pooled_bins_ends_where_the_bins_do(monkeypatch):
     monkeypatch.setattr(ml_fit, "FINISH_DECREMENT", 0.0)
     finish = ml_fit._finish
     monkeypatch.setattr(ml, "_finish", lambda p, mod, x, **kw: finish(p, mod, x, max_iter=300))
-    x = _record(0)
+    x = modal_superposition(MODES, FS, DURATION, 0)
     rng = np.random.default_rng(1000)
     f0 = np.array([m[0] for m in MODES]) * (1 + 0.001 * rng.standard_normal(len(MODES)))
     z0 = np.array([m[1] for m in MODES]) * np.exp(0.3 * rng.standard_normal(len(MODES)))
