@@ -67,3 +67,29 @@ def test_remove_harmonic_lines_interpolates():
     np.testing.assert_allclose(remove_harmonic_lines(f, p, mask), 1.0)
     with pytest.raises(ValueError, match="every line is masked"):
         remove_harmonic_lines(f, p, np.ones(10, bool))
+
+
+def test_a_response_without_lines_keeps_the_nominal_spindle_and_one_with_lines_is_refined():
+    """``lines_only`` (the output-only path, session 24): a lightly damped mode (530 Hz, 0.2 %) in a
+    response without milling lines had been taken for the 12th order of a 44.2 Hz spindle (nominal
+    45 Hz, the search +-5 %) and removed as a line; with no comb of lines standing out the nominal
+    is kept. The same response with weak lines at a 2 % lower speed added (11 multiples of 44.1 Hz,
+    each of 5 % of the response's sd in amplitude: 1.4 % of its variance) is refined to them, where
+    the comb's energy alone still takes the mode's; with lines ten times stronger both agree."""
+    from frequency_domain_records import modal_superposition
+
+    from oma.harmonics import refine_spindle_frequency
+
+    fs, duration = 2000.0, 15.0
+    y = modal_superposition([(350.0, 0.01, [1, 0.3, 0.1]), (530.0, 0.002, [1, 1, 0.2])], fs, duration, 1)
+    assert refine_spindle_frequency(y, fs, 45.0) == pytest.approx(530.0 / 12, rel=2e-3)   # the trap
+    assert refine_spindle_frequency(y, fs, 45.0, lines_only=True) == 45.0
+    t = np.arange(y.shape[1]) / fs
+    lines = sum(np.cos(2 * np.pi * 44.1 * h * t + h) for h in range(1, 12))
+    weak = y + 0.05 * np.std(y) * lines[None, :]
+    assert refine_spindle_frequency(weak, fs, 45.0) == pytest.approx(530.0 / 12, rel=2e-3)   # the mode's comb
+    assert refine_spindle_frequency(weak, fs, 45.0, lines_only=True) == pytest.approx(44.1, rel=1e-5)
+    strong = y + 0.5 * np.std(y) * lines[None, :]
+    ref = refine_spindle_frequency(strong, fs, 45.0)
+    assert ref == pytest.approx(44.1, rel=1e-5)
+    assert refine_spindle_frequency(strong, fs, 45.0, lines_only=True) == ref

@@ -196,7 +196,7 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
         return ResponseHarmonics(0.0, 0.0, int(teeth), np.zeros(0), np.zeros(0, bool), z, z, np.zeros(0, bool), res,
                                  np.zeros(0, bool))
     nominal = float(spindle_rpm) / 60.0
-    f0 = refine_spindle_frequency(y, fs, nominal, search=search) if refine else nominal
+    f0 = refine_spindle_frequency(y, fs, nominal, search=search, lines_only=True) if refine else nominal
     freqs, tooth, aliased, orders, sign = _line_set(f0, teeth, fs, n, alias_up_to)
     nperseg = int(nperseg or min(n, int(2 ** np.round(np.log2(2.0 * fs)))))
     fit = _fit_lines(y, t, fs, freqs, None, orders, sign, nperseg)
@@ -367,7 +367,7 @@ def cutting_window(y, sample_rate_hz: float, spindle_rpm: float, teeth: int, *, 
     fs = float(sample_rate_hz)
     if spindle_rpm is None or not spindle_rpm > 0 or y.shape[1] < 4 * fs / TRACK_HALF_BAND_HZ:
         return None
-    f0 = refine_spindle_frequency(y, fs, float(spindle_rpm) / 60.0)
+    f0 = refine_spindle_frequency(y, fs, float(spindle_rpm) / 60.0, lines_only=True)
     freqs, tooth = harmonic_frequencies(f0, teeth, 0.45 * fs)
     if not np.any(tooth):
         return None
