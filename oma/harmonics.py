@@ -68,7 +68,7 @@ def _comb_energy(x_windowed, sample_rate_hz, f0, max_hz):
 LINE_FLOOR_BINS = 20
 #: A comb of lines stands out of a record (``lines_only``) when, over the candidate frequencies,
 #: the best sum of the multiples' heights over their local floor is at least this many times the
-#: median sum. Session 24: the real Hurco files 500-2 500; records without lines 1.7-2.1.
+#: median sum. Session 24: the fifteen real Hurco files 120-2 500; records without lines 1.7-2.1.
 LINE_COMB_CONTRAST = 5.0
 
 
