@@ -14,7 +14,7 @@ from scipy.linalg import eigh
 from ._ml_fit import _scoring, _signed, _without_mode
 from .harmonics import at_milling_line
 from .ssi import same_mode
-from .whittle import _Model, _fisher, _gain, _input_level, _nll, _response, _spectrum, _unpack
+from .whittle import _Model, _fisher, _gain, _input_level, _nll, _response, _spectrum, _unpack, _weights
 
 __all__: list[str] = []
 
@@ -120,14 +120,13 @@ def _missing_mode(w, x, p, mod: _Model, band, *, n_freq: int = 200, within=(0.0,
     s = _spectrum(p, mod)[-1]
     gain = _gain(pp, mod)
     sinv = np.linalg.inv(s)
+    n = _weights(mod)
     if mod.weight is None:
         y = (sinv @ x[:, :, None])[..., 0]
         outer = np.real(y[:, :, None] * y[:, None, :].conj())
-        n = np.ones(w.size)
     else:   # blocks: ``S^-1 X X^H S^-1`` is the sum of their bins' ``S^-1 x x^H S^-1``
         y = sinv @ x
         outer = np.real(y @ np.conj(np.swapaxes(y, 1, 2)))
-        n = mod.weight
     sinv_r = np.real(sinv)
     zc = float(np.clip(np.median(pp.z), 0.01, 0.1))
     lo = max(band[0], within[0], w.min() / (2 * np.pi)) / (1.0 - 2.0 * zc)

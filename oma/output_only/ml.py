@@ -475,11 +475,11 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     if chain_c is None or abs(chain_c[1][0][-1] - f0[-1]) <= hw[-1] / 2:
                         break
                     f0[-1], z0[-1] = chain_c[1][0][-1], float(np.clip(chain_c[1][1][-1], 0.005, 0.2))
-                gain, penalty = None, 0.5 * (l + 2) * np.log(max(w_c.size if blocks_c is None else
-                                                                 int(blocks_c.n.sum()), 1))
+                gain = penalty = None
                 if chain_c is not None:
                     fits_c, fit_c = chain_c
                     gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c)
+                    penalty = 0.5 * (l + 2) * np.log(fit_c[5].n_bins)   # its bins, pooled or not
                 apart = chain_c is not None and _new_mode_apart(fit_c, g_c, f0, z0, lines)
                 if gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, f0, hw):
                     f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])
