@@ -259,7 +259,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         ``ml_options={'add_missing': None}`` turns the scan off).
     seed_peaks : bool
         With ``ml_refine``: residual spectral peaks no SSI mode explains
-        (:func:`oma.output_only.coverage.unexplained_peaks` at ``SEED_PEAK_RATIO``) are added as
+        (:func:`oma.output_only.coverage.unexplained_peaks` at ``SEED_PEAK_RATIO``, its wider net
+        ``base='window'``) are added as
         candidates (damping ``SEED_DAMPING``, or the peak's half-power width where narrower;
         direction the spectral matrix's first singular vector
         at the peak) for the refinement and its evidence gate (session 16).
@@ -347,7 +348,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         # is seeded for the refinement, whose evidence gate keeps it only if the spectrum supports it
         wander = max((h.speed_variation for h in harmonics), default=0.0)
         peaks = unexplained_peaks(raw, fs, (lo, hi), f_hat, z_hat, lines, line_relative_halfwidth=wander,
-                                  ratio=SEED_PEAK_RATIO)
+                                  ratio=SEED_PEAK_RATIO, base="window")
         widths = {}
         for p in peaks:   # one seed per frequency (channels may share a peak): its widest measure
             key = round(p.freq_hz, 6)
