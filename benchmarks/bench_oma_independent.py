@@ -10,8 +10,10 @@ the paper's cell and the oblique probe for reference. Per structure: records wit
 modes, modes missed and false, the frequency's mean and max |error|, and the coverage of the 95 %
 frequency and damping intervals.
 
-Run: ``python benchmarks/bench_oma_independent.py [--seeds 10] [--structures ...]`` (about 4
-minutes for 10 seeds on one core).
+Run: ``python benchmarks/bench_oma_independent.py [--seeds 10] [--structures ...] [--noise 0.02]
+[--quantity acceleration|velocity|displacement] [--force-slope 0] [--duration S]`` (about 4 minutes
+for 10 seeds on one core). The options vary the records away from the defaults: more sensor noise,
+another measured quantity, a coloured force (its power going as ``f^slope``), shorter records.
 """
 
 from __future__ import annotations
@@ -49,21 +51,27 @@ STRUCTURES = {
 }
 
 
-def record(name: str, seed: int) -> Record:
+QUANTITIES = {"displacement": ("m", 0), "velocity": ("m/s", 1), "acceleration": ("m/s2", 2)}
+
+
+def record(name: str, seed: int, *, noise: float = 0.02, quantity: str = "acceleration", force_slope: float = 0.0,
+           duration_s: float | None = None) -> Record:
     modes, fs, duration, _ = STRUCTURES[name]
-    acc = modal_superposition(modes, fs, duration, seed)
-    channels = tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ")
-    return Record(fs, channels, acc, paper_like_tool(), paper_like_cut(), name=f"{name}-{seed}")
+    unit, derivative = QUANTITIES[quantity]
+    y = modal_superposition(modes, fs, duration if duration_s is None else duration_s, seed, derivative=derivative,
+                            noise=noise, force_slope=force_slope)
+    channels = tuple(Channel(a.lower(), quantity, a, unit) for a in "XYZ")
+    return Record(fs, channels, y, paper_like_tool(), paper_like_cut(), name=f"{name}-{seed}")
 
 
-def run(name: str, seeds: int):
+def run(name: str, seeds: int, **variant):
     modes, _, _, band = STRUCTURES[name]
     ft = np.array([m[0] for m in modes])
     zt = np.array([m[1] for m in modes])
     exact = missed = false = 0
     ferr, fcov, zcov = [], [], []
     for seed in range(seeds):
-        m = identify_output_only([record(name, seed)], band_hz=band).modes
+        m = identify_output_only([record(name, seed, **variant)], band_hz=band).modes
         used = np.zeros(m.n_modes, dtype=bool)
         found = 0
         for f, z in zip(ft, zt):
@@ -91,12 +99,20 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--structures", nargs="+", default=list(STRUCTURES))
+    ap.add_argument("--noise", type=float, default=0.02, help="sensor noise, times the response's sd (0.02)")
+    ap.add_argument("--quantity", choices=list(QUANTITIES), default="acceleration")
+    ap.add_argument("--force-slope", type=float, default=0.0,
+                    help="the force's power spectrum goes as f^slope (0: white, -1: pink)")
+    ap.add_argument("--duration", type=float, default=None, help="record length, s (default: the structure's)")
     args = ap.parse_args(argv)
-    print(f"== records of modal superposition in the frequency domain, {args.seeds} per structure ==")
+    variant = dict(noise=args.noise, quantity=args.quantity, force_slope=args.force_slope, duration_s=args.duration)
+    print(f"== records of modal superposition in the frequency domain, {args.seeds} per structure; "
+          f"{args.quantity}, sensor noise {args.noise:g}, force slope {args.force_slope:g}, "
+          f"duration {'as listed' if args.duration is None else f'{args.duration:g} s'} ==")
     print("   structure | exact   | missed | false | f |e| % mean  max | f cov | zeta cov")
     with single_threaded_blas():
         for name in args.structures:
-            run(name, args.seeds)
+            run(name, args.seeds, **variant)
 
 
 if __name__ == "__main__":
