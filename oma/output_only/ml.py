@@ -392,9 +392,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             for j, k in enumerate(g):
                 if ref_fit[5].m == 1 and not ref_fit[5].q and not ref_fit[5].noise:
                     continue
-                gain = _mode_gain(fits, fit, j, x, refit=without[j])
+                penalty = 0.5 * (l + 2) * np.log(fit[5].n_bins)
+                gain = _mode_gain(fits, fit, j, x, refit=without[j], penalty=penalty)
                 if gain is not None:
-                    evidence[int(k)] = (gain, 0.5 * (l + 2) * np.log(fit[5].n_bins))
+                    evidence[int(k)] = (gain, penalty)
             # one mode goes, refitted without, and the rest are judged again (backward elimination:
             # session 25, an independent audit's lightly damped modes far apart kept false modes
             # gaining 6-10 against penalties of 17-19, and two at -125 / -110, beside the one
@@ -485,8 +486,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 gain = penalty = None
                 if chain_c is not None:
                     fits_c, fit_c = chain_c
-                    gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c)
                     penalty = 0.5 * (l + 2) * np.log(fit_c[5].n_bins)   # its bins, pooled or not
+                    gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c, penalty=penalty)
                 apart = chain_c is not None and _new_mode_apart(fit_c, g_c, f0, z0, lines)
                 if gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, f0, hw):
                     f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])
