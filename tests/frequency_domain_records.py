@@ -14,15 +14,14 @@ def modal_superposition(modes, sample_rate_hz: float, duration_s: float, seed: i
     direction (3,))`` (unit modal mass: the receptance ``u u^T / (w_r^2 - w^2 + 2 i zeta w_r w)``),
     as displacement (``derivative`` 0) or its derivatives (1, 2: acceleration), plus white noise of
     ``noise`` times the response's sd. ``force_slope`` colours the force: its power spectrum goes
-    as ``f^force_slope`` (0: white; -1: pink), referred to 1 Hz, zero at 0 Hz where the slope is
-    negative."""
+    as ``f^force_slope`` (0: white; -1: pink), referred to 1 Hz, zero at 0 Hz."""
     rng = np.random.default_rng(seed)
     n = int(round(sample_rate_hz * duration_s))
     f = np.fft.rfftfreq(n, 1 / sample_rate_hz)
     force = rng.standard_normal((3, f.size)) + 1j * rng.standard_normal((3, f.size))
     if force_slope:
         with np.errstate(divide="ignore"):
-            colour = np.where(f > 0, np.abs(f) ** (0.5 * force_slope), 0.0 if force_slope < 0 else 1.0)
+            colour = np.where(f > 0, np.abs(f) ** (0.5 * force_slope), 0.0)
         force = force * colour[None, :]
     x = np.zeros((3, f.size), dtype=complex)
     for fr, z, u in modes:

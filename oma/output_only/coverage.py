@@ -12,8 +12,9 @@ lines removed), its local maxima in the analysed band that stand ``PEAK_RATIO`` 
 channel's median over the band and ``PROMINENCE`` times above their base (on each side the lowest
 value before the spectrum rises above the peak, within a tenth of its frequency; the higher side's:
 a peak, not a bump on a strong mode's skirt), away from every milling line and from the band's
-edges, and not within ``max(3 zeta f, 2 bins)`` of any identified mode's frequency (whatever the channel: a mode
-shows in every channel its direction or a neighbour's leakage reaches). What remains is named;
+edges, and not within ``max(3 zeta f, 2 bins)`` of any identified mode's frequency (whatever the
+channel: a mode shows in every channel its direction or a neighbour's leakage reaches). What
+remains is named;
 ``identify --output-only`` does not trust a model that leaves such a peak. The refinement's seeds
 (:func:`oma.output_only.modes.output_only_modes`) are found the same way with a wider net: the
 prominence over the lowest value within the reach on each side (``base='window'``), which also

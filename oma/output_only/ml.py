@@ -398,18 +398,18 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     evidence[int(k)] = (gain, penalty)
             # one mode goes, refitted without, and the rest are judged again (backward elimination:
             # session 25, an independent audit's lightly damped modes far apart kept false modes
-            # gaining 6-10 against penalties of 17-19, and two at -125 / -110, beside the one
-            # their group dropped): a mode the fit moved out of
-            # its band onto another's start, whose group refits without it keeping the others in
-            # theirs, is a second candidate for that mode's peak whatever it gains there (two modes
-            # on one peak fit its small misfits: session 20, a candidate started at 82 Hz moved
-            # onto the 70 Hz mode's peak gained 61 against 16, and the group went unrefined);
-            # else the least supported under its penalty (two candidates for one peak each look
-            # redundant while the other is there: once one is gone the other is judged alone), of
-            # those whose group refits without it keeping
-            # the others in their bands if any (dropping the weaker of two candidates for one
-            # 70 Hz peak, gains 4.6 and 4.7 against 16.4, had left the other refitted from 82 Hz
-            # stuck there). "Refits": the evidence's refit, from the fit less the mode
+            # gaining 6-10 against penalties of 17-19, and two at -125 / -110, beside the one their
+            # group dropped). Which one: a mode the fit moved out of its band onto another's start,
+            # whose group refits without it keeping the others in theirs, is a second candidate for
+            # that mode's peak whatever it gains there (two modes on one peak fit its small
+            # misfits: session 20, a candidate started at 82 Hz moved onto the 70 Hz mode's peak
+            # gained 61 against 16, and the group went unrefined); else the least supported under
+            # its penalty (two candidates for one peak each look redundant while the other is
+            # there: once one is gone the other is judged alone), of those whose group refits
+            # without it keeping the others in their bands if any (dropping the weaker of two
+            # candidates for one 70 Hz peak, gains 4.6 and 4.7 against 16.4, had left the other
+            # refitted from 82 Hz stuck there). "Refits": the evidence's refit, from the fit less
+            # the mode
             margin = np.array([evidence[int(k)][0] - evidence[int(k)][1] if int(k) in evidence else np.inf
                                for k in g])
             others = [np.delete(g, j) for j in range(g.size)]
