@@ -185,6 +185,12 @@ def _strongest_candidate_each(fcs, a, amat, bmat, zc):
     return best
 
 
+def _mode_penalty(mod: _Model) -> float:
+    """The BIC penalty of one mode's parameters (frequency, damping, direction, input variance),
+    ``0.5 (l + 2) log(n_bins)`` over the bins of the model (pooled or not; Schwarz 1978)."""
+    return 0.5 * (mod.l + 2) * float(np.log(mod.n_bins))
+
+
 def _mode_gain(fits, fit, j: int, x, *, refit: dict | None = None, penalty: float | None = None):
     """The decrease of the group's negative log-likelihood that its mode ``j`` brings: the group
     refitted without it on the same bins, both with the richest tail model fitted (coherent residual

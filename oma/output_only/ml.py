@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._ml_fit import _TAIL_PARENT, _finish, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
-from ._ml_inference import _information_se, _input_slope, _missing_mode, _mode_gain, _new_mode_apart
+from ._ml_inference import _information_se, _input_slope, _missing_mode, _mode_gain, _mode_penalty, _new_mode_apart
 from .blocks import block_bins, pool
 from .whittle import _fisher, _input_level, _unpack
 
@@ -348,7 +348,6 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 by_kind[r] = (ft[5], ft[4])
         if not fits:
             return None
-        # the tail model with the smallest BIC (its n the bins, pooled or not)
         # the tail model with the smallest BIC (its n the bins, pooled or not); the constant
         # background no candidate where the known tails were fitted (:data:`KNOWN_TAILS_ALWAYS`)
         cands = [ft for ft in fits if not (KNOWN_TAILS_ALWAYS and ft[5].q == 0 and "known" in by_kind)] or fits
@@ -389,10 +388,10 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             # the mode's own parameters (frequency, damping, direction, input variance)
             ref_fit = next((ft for ft in fits if ft[5].q and ft[5].coherent), fit)
             without = [{} for _ in g]   # each mode's evidence refit: the group's others without it
+            penalty = _mode_penalty(fit[5])
             for j, k in enumerate(g):
                 if ref_fit[5].m == 1 and not ref_fit[5].q and not ref_fit[5].noise:
                     continue
-                penalty = 0.5 * (l + 2) * np.log(fit[5].n_bins)
                 gain = _mode_gain(fits, fit, j, x, refit=without[j], penalty=penalty)
                 if gain is not None:
                     evidence[int(k)] = (gain, penalty)
@@ -486,7 +485,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 gain = penalty = None
                 if chain_c is not None:
                     fits_c, fit_c = chain_c
-                    penalty = 0.5 * (l + 2) * np.log(fit_c[5].n_bins)   # its bins, pooled or not
+                    penalty = _mode_penalty(fit_c[5])
                     gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c, penalty=penalty)
                 apart = chain_c is not None and _new_mode_apart(fit_c, g_c, f0, z0, lines)
                 if gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, f0, hw):
