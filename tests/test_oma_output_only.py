@@ -841,24 +841,24 @@ def test_a_retried_groups_results_replace_only_that_groups():
     adding another. The merge keeps the starting modes in their order (0 and 1 from the retry,
     2 from the first), then the first's added mode of group 2, then the retry's; the mode added to
     group 0 by the first refinement is gone, and the evidence follows each mode."""
-    from oma.output_only.modes import _merged
+    from oma.output_only.modes import _merged, _Refined
 
     def refinement(f, group, tag):
         n = len(f)
         f = np.asarray(f, dtype=float)
         shapes = np.vstack([f, -f]).astype(complex)
         ses = tuple(f * s for s in (0.01, 0.02, 0.03))
-        return (f, f / 100, shapes, np.ones(n, dtype=bool), ses, (f * 10, f * 20), np.asarray(group)), \
+        return _Refined(f, f / 100, shapes, np.ones(n, dtype=bool), ses, (f * 10, f * 20), np.asarray(group)), \
             {**{k: (tag, k) for k in range(n)}, "dropped": np.arange(n) == 1, "duplicate": np.zeros(n, dtype=bool),
              "left_band": np.arange(n) == (1 if tag == "retry" else 2), "added": np.arange(n) >= 3}
 
     first, ev = refinement([10.0, 11.0, 30.0, 31.0, 12.0], [0, 0, 2, 2, 0], "first")
     retry, ev_retry = refinement([10.5, 11.5, 30.0, 13.0], [0, 0, 2, 0], "retry")
     out, new_ev = _merged(first, ev, retry, ev_retry, np.array([True, True, False]))
-    assert out[0].tolist() == [10.5, 11.5, 30.0, 31.0, 13.0]
-    assert out[6].tolist() == [0, 0, 2, 2, 0]
-    assert np.array_equal(out[2][0].real, out[0]) and np.array_equal(out[5][1], out[0] * 20)
-    assert np.array_equal(out[4][2], np.array([10.5, 11.5, 30.0, 31.0, 13.0]) * 0.03)
+    assert out.freq_hz.tolist() == [10.5, 11.5, 30.0, 31.0, 13.0]
+    assert out.group.tolist() == [0, 0, 2, 2, 0]
+    assert np.array_equal(out.shapes[0].real, out.freq_hz) and np.array_equal(out.levels[1], out.freq_hz * 20)
+    assert np.array_equal(out.se[2], np.array([10.5, 11.5, 30.0, 31.0, 13.0]) * 0.03)
     assert [new_ev[j] for j in range(5)] == [("retry", 0), ("retry", 1), ("first", 2), ("first", 3), ("retry", 3)]
     assert new_ev["dropped"].tolist() == [False, True, False, False, False]
     assert new_ev["left_band"].tolist() == [False, True, True, False, False]

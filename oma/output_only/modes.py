@@ -16,8 +16,8 @@ modes it does not fit, and the directions' errors while the reported directions 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import signal as sps
@@ -173,10 +173,10 @@ def output_only_modes(signals, *args, **kwargs) -> "OutputOnlyModes":
 
 
 def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, band_hz=(4.0, 100.0),
-                      band_ratio: float | None = None, cycles: float = 2.0, lag_s: float | None = 0.12, max_order: int = 60, n_segments: int = 10, level: float = 0.95,
-                      refine_harmonics: bool = True, integrate: int = 0,
-                       fdd_directions: bool = False, alias_up_to: float = 0.5, ml_refine: bool = True,
-                       ml_directions: bool = True, derivative: int = 2,
+                       band_ratio: float | None = None, cycles: float = 2.0, lag_s: float | None = 0.12,
+                       max_order: int = 60, n_segments: int = 10, level: float = 0.95, refine_harmonics: bool = True,
+                       integrate: int = 0, fdd_directions: bool = False, alias_up_to: float = 0.5,
+                       ml_refine: bool = True, ml_directions: bool = True, derivative: int = 2,
                        ssi_derivatives: tuple | None = (2, 0), ml_options: dict | None = None,
                        ml_evidence: bool = True, uncertainty: str = "information",
                        seed_peaks: bool = True) -> OutputOnlyModes:
@@ -274,43 +274,108 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     fs = float(sample_rate_hz)
     axes = ~np.all(np.isnan(signals[0]), axis=1)
     warnings: list[str] = []
-    harmonics: list[ResponseHarmonics] = []
-    residuals, raw = [], []
-    for s, rpm, z in zip(signals, spindle_rpm, teeth):
-        rh = remove_response_harmonics(s[axes], fs, rpm, int(z), refine=refine_harmonics, alias_up_to=alias_up_to)
-        harmonics.append(rh)
-        res = rh.residual
-        raw.append(res)
-        if integrate:
-            res = integrate_frequency_domain(res, fs, order=integrate, highpass_hz=band_hz[0])
-        residuals.append(res)
+    harmonics, raw, residuals = _lines_removed(signals, axes, fs, spindle_rpm, teeth, refine=refine_harmonics,
+                                               alias_up_to=alias_up_to, integrate=integrate, highpass_hz=band_hz[0])
     lo, hi = float(band_hz[0]), float(min(band_hz[1], 0.45 * fs))
+    lines = np.concatenate([h.freq_hz for h in harmonics]) if harmonics else np.zeros(0)
+    views = [residuals] if integrate or not ssi_derivatives else \
+        [[_reweight(r, fs, derivative, d, lo) for r in raw] for d in ssi_derivatives]
+    modes, rejected, n_seg = _ssi_modes(views, fs, lo, hi, harmonics, lines, band_ratio=band_ratio, cycles=cycles,
+                                        lag_s=lag_s, max_order=max_order, n_segments=n_segments)
+    if n_seg < 3:
+        warnings.append("record too short for the segment jackknife: no intervals")
+    if ml_refine and seed_peaks:
+        modes = _with_seeds(modes, raw, fs, (lo, hi), lines, harmonics, warnings)
+    if fdd_directions and modes.n:
+        modes = replace(modes, shapes=_fdd_shapes(raw, fs, modes.freq_hz, modes.damping, modes.shapes))
+    if ml_refine and modes.n:
+        modes = _refined(modes, raw, fs, lines, derivative, n_segments, {"band_hz": (lo, hi), **(ml_options or {})},
+                         evidence=ml_evidence, directions=ml_directions, uncertainty=uncertainty, warnings=warnings)
+    return _reported(modes, axes, lines, (lo, hi), harmonics, rejected, n_seg, level, warnings)
+
+
+@dataclass(frozen=True)
+class _Modes:
+    """The modes in hand at one stage of :func:`output_only_modes`, one entry per mode: SSI's values
+    and jackknife errors, replaced by the refinement's where it is kept."""
+
+    freq_hz: np.ndarray
+    damping: np.ndarray
+    shapes: np.ndarray                  # (n_channels, n), in the signal's unit
+    support: np.ndarray                 # SSI's; 0 for a seeded peak or a mode the refinement's scan added
+    freq_se: np.ndarray
+    damping_se: np.ndarray
+    direction_se: np.ndarray
+    seeded: np.ndarray                  # a residual peak, no SSI cluster
+    refined: np.ndarray | None = None           # the refinement's values kept (None: none)
+    from_information: np.ndarray | None = None  # errors from the refinement's information (None: none)
+    input_level: np.ndarray | None = None       # the refinement's background level at the mode (None: NaN)
+    input_level_se: np.ndarray | None = None    # ... and its log error
+
+    def __post_init__(self):
+        n = self.n
+        for name, fill in (("refined", False), ("from_information", False), ("input_level", np.nan),
+                           ("input_level_se", np.nan)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, fill))
+
+    @property
+    def n(self) -> int:
+        return self.freq_hz.size
+
+    @classmethod
+    def without_errors(cls, freq_hz, damping, shapes, *, seeded: bool) -> "_Modes":
+        """Modes with no SSI cluster and no SSI error (seeded peaks, or modes the scan added)."""
+        n = len(freq_hz)
+        nan = np.full(n, np.nan)
+        return cls(np.asarray(freq_hz, dtype=float), np.asarray(damping, dtype=float), shapes, np.zeros(n),
+                   nan, nan.copy(), nan.copy(), np.full(n, seeded))
+
+    def take(self, idx) -> "_Modes":
+        return _Modes(**{k: v[:, idx] if k == "shapes" else v[idx] for k, v in vars(self).items()})
+
+    def plus(self, other: "_Modes") -> "_Modes":
+        return _Modes(**{k: np.column_stack([v, getattr(other, k)]) if k == "shapes" else
+                         np.append(v, getattr(other, k)) for k, v in vars(self).items()})
+
+
+def _lines_removed(signals, axes, fs, spindle_rpm, teeth, *, refine, alias_up_to, integrate, highpass_hz):
+    """Per record the milling lines found and regressed out of the recorded axes
+    (:func:`remove_response_harmonics`): the lines, the residuals, and the residuals SSI reads
+    (integrated ``integrate`` times)."""
+    harmonics, raw, residuals = [], [], []
+    for s, rpm, z in zip(signals, spindle_rpm, teeth):
+        rh = remove_response_harmonics(s[axes], fs, rpm, int(z), refine=refine, alias_up_to=alias_up_to)
+        harmonics.append(rh)
+        raw.append(rh.residual)
+        residuals.append(integrate_frequency_domain(rh.residual, fs, order=integrate, highpass_hz=highpass_hz)
+                         if integrate else rh.residual)
+    return harmonics, raw, residuals
+
+
+def _ssi_modes(views, fs, lo, hi, harmonics, lines, *, band_ratio, cycles, lag_s, max_order, n_segments):
+    """SSI's modes over ``[lo, hi]`` from each view of the residuals, with their jackknife errors:
+    the clusters on milling lines set aside (their frequencies returned), per group of overlapping
+    bands the view that resolves the most (:func:`_choose_views`), duplicates dropped. Returns the
+    modes, the rejected frequencies and the number of segments."""
     edges = [lo]
     while band_ratio is not None and edges[-1] * band_ratio < hi / 1.2:
         edges.append(edges[-1] * band_ratio)
     edges.append(hi)
-    views = [residuals] if integrate or not ssi_derivatives else \
-        [[_reweight(r, fs, derivative, d, lo) for r in raw] for d in ssi_derivatives]
-    parts = [_band_modes(v, fs, edges[k], edges[k + 1], first=k == 0, last=k == len(edges) - 2,
-                         cycles=cycles, lag_s=lag_s, max_order=max_order,
-                         n_segments=n_segments, jackknife_now=len(views) == 1)
-             for v in views for k in range(len(edges) - 1)]
-    f_all = np.concatenate([p[0] for p in parts])
-    z_all = np.concatenate([p[1] for p in parts])
-    shapes_all = np.hstack([p[2] for p in parts])
-    sup_all = np.concatenate([p[3] for p in parts])
-    fse_all = np.concatenate([p[4] for p in parts])
-    zse_all = np.concatenate([p[5] for p in parts])
-    n_seg = min(p[6] for p in parts)
-    band = (lo, hi)
-    use_all = np.concatenate([p[7] for p in parts])
-    view_all = np.concatenate([np.full(p[0].size, i // (len(edges) - 1)) for i, p in enumerate(parts)])
-    sel = StabilisedModes(f_all, z_all, shapes_all, sup_all, tuple(range(f_all.size)))
-    order_ = np.argsort(f_all)
-    fse_all, zse_all, use_all, view_all = fse_all[order_], zse_all[order_], use_all[order_], view_all[order_]
-    keep = np.ones(sel.n_modes, dtype=bool)
-    lines = np.concatenate([h.freq_hz for h in harmonics]) if harmonics else np.zeros(0)
-    keep &= ~at_milling_line(sel.freq_hz, sel.damping_ratio, lines)
+    runs = [_band_modes(v, fs, edges[k], edges[k + 1], first=k == 0, last=k == len(edges) - 2,
+                        cycles=cycles, lag_s=lag_s, max_order=max_order,
+                        n_segments=n_segments, jackknife_now=len(views) == 1)
+            for v in views for k in range(len(edges) - 1)]
+    parts = [m for m, _, _ in runs]
+    f_all = np.concatenate([m.freq_hz for m in parts])
+    sel = StabilisedModes(f_all, np.concatenate([m.damping for m in parts]), np.hstack([m.shapes for m in parts]),
+                          np.concatenate([m.support for m in parts]), tuple(range(f_all.size)))
+    order_ = np.argsort(f_all)      # StabilisedModes sorts by frequency: so must the errors
+    fse_all, zse_all, use_all = (np.concatenate([getattr(m, a) for m in parts])[order_]
+                                 for a in ("freq_se", "damping_se", "direction_se"))
+    view_all = np.concatenate([np.full(m.n, i // (len(edges) - 1)) for i, m in enumerate(parts)])[order_]
+    n_seg = min(n for _, n, _ in runs)
+    keep = ~at_milling_line(sel.freq_hz, sel.damping_ratio, lines)
     for h in harmonics:
         # a tracked line (the speed varied by ``speed_variation``) leaves a remainder as wide as its
         # wander: a pole within that of a line and damped less than a few times it is the line's
@@ -322,10 +387,10 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     if len(views) > 1:
         keep &= _choose_views(sel.freq_hz, sel.damping_ratio, sel.support, view_all, keep)
         # the SSI jackknife of the kept modes only, each in its own run
-        part_all = np.concatenate([np.full(p[0].size, i) for i, p in enumerate(parts)])[order_]
+        part_all = np.concatenate([np.full(m.n, i) for i, m in enumerate(parts)])[order_]
         for i in np.unique(part_all[keep]):
             ks = np.flatnonzero(keep & (part_all == i))
-            fse_all[ks], zse_all[ks], use_all[ks] = _ssi_jackknife(parts[i][8], sel.freq_hz[ks], sel.shapes[:, ks])
+            fse_all[ks], zse_all[ks], use_all[ks] = _ssi_jackknife(runs[i][2], sel.freq_hz[ks], sel.shapes[:, ks])
     # duplicates: two clusters of one mode (same frequency within 2 %, MAC > 0.9): keep the better supported
     order = np.argsort(-sel.support)
     for a_i, a in enumerate(order):
@@ -334,126 +399,121 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         for b in order[a_i + 1:]:
             if keep[b] and same_mode(sel.freq_hz[a], sel.shapes[:, a], sel.freq_hz[b], sel.shapes[:, b:b + 1])[0]:
                 keep[b] = False
-    rejected = sel.freq_hz[harmonic]
-    f_hat, z_hat, shapes, support = sel.freq_hz[keep], sel.damping_ratio[keep], sel.shapes[:, keep], sel.support[keep]
-    f_se, z_se, u_se = fse_all[keep], zse_all[keep], use_all[keep]
-    if n_seg < 3:
-        warnings.append("record too short for the segment jackknife: no intervals")
-    seeded = np.zeros(f_hat.size, dtype=bool)
-    unfitted_seed = np.zeros(f_hat.size, dtype=bool)
-    refined = np.zeros(f_hat.size, dtype=bool)
-    if ml_refine and seed_peaks:
-        # a residual spectral peak no SSI mode explains (on a short record a clean mode can form no
-        # SSI cluster: session 16, a 17 Hz Z mode 4662 times its channel's median in a 5 s record)
-        # is seeded for the refinement, whose evidence gate keeps it only if the spectrum supports it
-        wander = max((h.speed_variation for h in harmonics), default=0.0)
-        peaks = unexplained_peaks(raw, fs, (lo, hi), f_hat, z_hat, lines, line_relative_halfwidth=wander,
-                                  ratio=SEED_PEAK_RATIO, base="window")
-        widths = {}
-        for p in peaks:   # one seed per frequency (channels may share a peak): its widest measure
-            key = round(p.freq_hz, 6)
-            widths[key] = float(np.fmax(widths.get(key, np.nan), p.half_power_width_hz))
-        seeds = sorted(widths)
-        if seeds:
-            n_seeded = len(seeds)
-            seed_shapes = _peak_shapes(raw, fs, seeds)
-            seed_damping = [float(np.clip(widths[f] / (2.0 * f), SEED_MIN_DAMPING, SEED_DAMPING))
-                            if np.isfinite(widths[f]) else SEED_DAMPING for f in seeds]
-            order_new = np.argsort(np.r_[f_hat, seeds], kind="stable")
-            f_hat = np.r_[f_hat, seeds][order_new]
-            z_hat = np.r_[z_hat, seed_damping][order_new]
-            shapes = np.column_stack([shapes, seed_shapes])[:, order_new]
-            support = np.r_[support, np.zeros(n_seeded)][order_new]
-            seeded = np.r_[seeded, np.ones(n_seeded, dtype=bool)][order_new]
-            f_se, z_se, u_se = (np.r_[a, np.full(n_seeded, np.nan)][order_new] for a in (f_se, z_se, u_se))
-            warnings.extend(f"a residual spectral peak at {f:.2f} Hz that no SSI mode explains was tried as a mode"
-                            for f in seeds)
-    if fdd_directions and f_hat.size:
-        shapes = _fdd_shapes(raw, fs, f_hat, z_hat, shapes)
-    from_information = np.zeros(f_hat.size, dtype=bool)
-    in_level, in_level_se = np.full(f_hat.size, np.nan), np.full(f_hat.size, np.nan)
-    if ml_refine and f_hat.size:
-        ev = {} if ml_evidence else None
-        options = {"band_hz": (lo, hi), **(ml_options or {})}
-        out = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev,
-                         uncertainty=uncertainty, **options)
-        if options.get("input_slope", True) and _n_moved(out, f_hat, f_se):
-            # the sloped input level trades with a close pair's frequencies: where it moves a mode
-            # off SSI's (a misfit, below), the flat input is tried before SSI's values are kept
-            # (session 15: 1 of 10 records' Z mode beside X, which then lost its background scale),
-            # in the groups holding such a mode only (the others' fits do not depend on it)
-            redo = np.isin(out[6][:f_hat.size], out[6][:f_hat.size][_moved(out, f_hat, f_se)])
-            ev_flat = {} if ml_evidence else None
-            flat = _ml_refine(raw, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=ev_flat,
-                              uncertainty=uncertainty, **{**options, "input_slope": False, "fit_only": redo})
-            if _n_moved(flat, f_hat, f_se) < _n_moved(out, f_hat, f_se):
-                out, ev = _merged(out, ev, flat, ev_flat, redo)
-                at = ", ".join(f"{f:.2f}" for f in f_hat[redo])
-                warnings.append(f"the refinement with a sloped background level moved a mode off SSI's frequency; "
-                                f"the flat level was used for the modes at {at} Hz (a white background force "
-                                "assumed there)")
-        out = out[:6]
-        n_new = out[0].size - f_hat.size
-        if n_new:
-            # modes the refinement's residual scan added (no SSI cluster): their "SSI" values are
-            # the refinement's, with no SSI error (so never taken for "moved"; no interval unless
-            # the refinement's information gives one)
-            new = slice(f_hat.size, None)
-            f_hat, z_hat = np.append(f_hat, out[0][new]), np.append(z_hat, out[1][new])
-            shapes, support = np.column_stack([shapes, out[2][:, new]]), np.append(support, np.zeros(n_new))
-            f_se, z_se = np.append(f_se, np.full(n_new, np.nan)), np.append(z_se, np.full(n_new, np.nan))
-            u_se = np.append(u_se, np.full(n_new, np.nan))
-            seeded = np.append(seeded, np.zeros(n_new, dtype=bool))
-            for k in range(f_hat.size - n_new, f_hat.size):
-                gain = f" (likelihood gain {ev[k][0]:.1f} against penalty {ev[k][1]:.1f})" if ev else ""
-                warnings.append(f"mode at {f_hat[k]:.2f} Hz found by the refinement's scan of what its group's "
-                                f"model left unexplained, not by SSI{gain}")
-        # a mode whose likelihood gain is under its BIC penalty is not supported by the data, one
-        # the fit moved onto another's peak is a second candidate for it, and one the fit took out
-        # of its band is not a mode at its pole: the refinement dropped it and refitted its group
-        # without it
-        weak = ev["dropped"] if ev else np.zeros(f_hat.size, dtype=bool)
-        for k in np.flatnonzero(weak):
-            what = "stable SSI cluster" if support[k] > 0 else "seeded peak"
-            why = ("the refinement moved it out of its band onto another mode's peak (a second candidate for that "
-                   "mode)" if ev["duplicate"][k] else
-                   "the refinement's fit of its group took it out of its band or to a damping over "
-                   f"{100 * LEFT_DAMPING:.0f} % (what the spectrum holds there is background, not a mode at this pole), "
-                   "and the group refitted without it keeps its other modes in their bands"
-                   if ev["left_band"][k] else
-                   f"the spectrum's likelihood gains {ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
-            warnings.append(f"{what} at {f_hat[k]:.2f} Hz not kept: {why}")
-        keep_ = ~weak
-        out = (out[0][keep_], out[1][keep_], out[2][:, keep_], out[3][keep_],
-               None if out[4] is None else tuple(a[keep_] for a in out[4]), tuple(a[keep_] for a in out[5]))
-        f_hat, z_hat, shapes, support = f_hat[keep_], z_hat[keep_], shapes[:, keep_], support[keep_]
-        f_se, z_se, u_se, seeded = f_se[keep_], z_se[keep_], u_se[keep_], seeded[keep_]
-        f_ssi, z_ssi = f_hat, z_hat
-        f_hat, z_hat, ml_shapes, fitted, ses, (in_level, in_level_se) = out
-        # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is
-        # taken for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept
-        fitted = fitted & ~_moved(out, f_ssi, f_se)    # a group whose fit failed keeps SSI's values and errors
-        unfitted_seed = seeded & ~fitted
-        refined = fitted
-        in_level, in_level_se = np.where(fitted, in_level, np.nan), np.where(fitted, in_level_se, np.nan)
-        f_hat, z_hat = np.where(fitted, f_hat, f_ssi), np.where(fitted, z_hat, z_ssi)
-        if ses is not None:
-            with_se = fitted & np.isfinite(ses[0]) & np.isfinite(ses[1])
-            f_se, z_se = (np.where(with_se, new, old) for new, old in zip(ses[:2], (f_se, z_se)))
-            if uncertainty == "information":
-                from_information = with_se
-        if ml_directions:
-            # only for close modes (a group of several, where SSI's directions are pinned by little
-            # more than the difference of their poles) and only where the refinement is kept (a
-            # group it moved off SSI's frequencies keeps SSI's directions too)
-            close = np.zeros(f_hat.size, dtype=bool)
-            widths = {k: v for k, v in (ml_options or {}).items() if k in ("half_width", "min_half_width_hz")}
-            for g in band_groups(f_ssi, z_ssi, **widths):
-                close[g] = len(g) > 1
-            use = fitted & close
-            shapes = np.where(use[None, :], ml_shapes, shapes)
-            if ses is not None:
-                u_se = np.where(use & np.isfinite(ses[2]) & (ses[2] > 0), ses[2], u_se)
+    modes = _Modes(sel.freq_hz[keep], sel.damping_ratio[keep], sel.shapes[:, keep], sel.support[keep],
+                   fse_all[keep], zse_all[keep], use_all[keep], np.zeros(int(np.sum(keep)), dtype=bool))
+    return modes, sel.freq_hz[harmonic], n_seg
+
+
+def _with_seeds(modes: _Modes, raw, fs, band, lines, harmonics, warnings) -> _Modes:
+    """``modes`` and, in order of frequency, the residual spectral peaks no mode explains as
+    candidates for the refinement (``seed_peaks`` of :func:`output_only_modes`).
+
+    On a short record a clean mode can form no SSI cluster (session 16: a 17 Hz Z mode 4662 times
+    its channel's median in a 5 s record); the refinement's evidence gate keeps a seed only if the
+    spectrum supports it."""
+    wander = max((h.speed_variation for h in harmonics), default=0.0)
+    peaks = unexplained_peaks(raw, fs, band, modes.freq_hz, modes.damping, lines, line_relative_halfwidth=wander,
+                              ratio=SEED_PEAK_RATIO, base="window")
+    widths = {}
+    for p in peaks:   # one seed per frequency (channels may share a peak): its widest measure
+        key = round(p.freq_hz, 6)
+        widths[key] = float(np.fmax(widths.get(key, np.nan), p.half_power_width_hz))
+    seeds = sorted(widths)
+    if not seeds:
+        return modes
+    damping = [float(np.clip(widths[f] / (2.0 * f), SEED_MIN_DAMPING, SEED_DAMPING)) if np.isfinite(widths[f])
+               else SEED_DAMPING for f in seeds]
+    warnings.extend(f"a residual spectral peak at {f:.2f} Hz that no SSI mode explains was tried as a mode"
+                    for f in seeds)
+    both = modes.plus(_Modes.without_errors(seeds, damping, _peak_shapes(raw, fs, seeds), seeded=True))
+    return both.take(np.argsort(both.freq_hz, kind="stable"))
+
+
+def _refined(modes: _Modes, raw, fs, lines, derivative, n_segments, options, *, evidence, directions,
+             uncertainty, warnings) -> _Modes:
+    """``modes`` after the Whittle-ML refinement (``ml_refine``, ``ml_evidence``, ``ml_directions``
+    of :func:`output_only_modes`): the modes its evidence gate drops removed, those its scan adds
+    appended, the refined values and errors kept where the fit is not a misfit."""
+    f_hat, f_se = modes.freq_hz, modes.freq_se
+    ev = {} if evidence else None
+    out = _ml_refine(raw, fs, f_hat, modes.damping, modes.shapes, lines, derivative, n_segments, evidence=ev,
+                     uncertainty=uncertainty, **options)
+    if options.get("input_slope", True) and _n_moved(out, f_hat, f_se):
+        # the sloped input level trades with a close pair's frequencies: where it moves a mode
+        # off SSI's (a misfit, below), the flat input is tried before SSI's values are kept
+        # (session 15: 1 of 10 records' Z mode beside X, which then lost its background scale),
+        # in the groups holding such a mode only (the others' fits do not depend on it)
+        redo = np.isin(out.group[:f_hat.size], out.group[:f_hat.size][_moved(out, f_hat, f_se)])
+        ev_flat = {} if evidence else None
+        flat = _ml_refine(raw, fs, f_hat, modes.damping, modes.shapes, lines, derivative, n_segments,
+                          evidence=ev_flat, uncertainty=uncertainty, **{**options, "input_slope": False, "fit_only": redo})
+        if _n_moved(flat, f_hat, f_se) < _n_moved(out, f_hat, f_se):
+            out, ev = _merged(out, ev, flat, ev_flat, redo)
+            at = ", ".join(f"{f:.2f}" for f in f_hat[redo])
+            warnings.append(f"the refinement with a sloped background level moved a mode off SSI's frequency; "
+                            f"the flat level was used for the modes at {at} Hz (a white background force "
+                            "assumed there)")
+    n_new = out.freq_hz.size - modes.n
+    if n_new:
+        # modes the refinement's residual scan added (no SSI cluster): their "SSI" values are the
+        # refinement's, with no SSI error (so never taken for "moved"; no interval unless the
+        # refinement's information gives one)
+        new = slice(modes.n, None)
+        modes = modes.plus(_Modes.without_errors(out.freq_hz[new], out.damping[new], out.shapes[:, new], seeded=False))
+        for k in range(modes.n - n_new, modes.n):
+            gain = f" (likelihood gain {ev[k][0]:.1f} against penalty {ev[k][1]:.1f})" if ev else ""
+            warnings.append(f"mode at {modes.freq_hz[k]:.2f} Hz found by the refinement's scan of what its group's "
+                            f"model left unexplained, not by SSI{gain}")
+    # a mode whose likelihood gain is under its BIC penalty is not supported by the data, one the
+    # fit moved onto another's peak is a second candidate for it, and one the fit took out of its
+    # band is not a mode at its pole: the refinement dropped it and refitted its group without it
+    weak = ev["dropped"] if ev else np.zeros(modes.n, dtype=bool)
+    for k in np.flatnonzero(weak):
+        what = "stable SSI cluster" if modes.support[k] > 0 else "seeded peak"
+        why = ("the refinement moved it out of its band onto another mode's peak (a second candidate for that "
+               "mode)" if ev["duplicate"][k] else
+               "the refinement's fit of its group took it out of its band or to a damping over "
+               f"{100 * LEFT_DAMPING:.0f} % (what the spectrum holds there is background, not a mode at this pole), "
+               "and the group refitted without it keeps its other modes in their bands"
+               if ev["left_band"][k] else
+               f"the spectrum's likelihood gains {ev[k][0]:.1f} with it, under its penalty {ev[k][1]:.1f}")
+        warnings.append(f"{what} at {modes.freq_hz[k]:.2f} Hz not kept: {why}")
+    modes, out = modes.take(~weak), out.take(~weak)
+    # a refinement that moves a frequency by more than ML_MAX_SHIFT SSI standard errors is taken
+    # for a misfit (e.g. one SSI mode for two true ones): SSI's values are kept; so are they where a
+    # group's fit failed
+    fitted = out.fitted & ~_moved(out, modes.freq_hz, modes.freq_se)
+    f_se, z_se, u_se, shapes = modes.freq_se, modes.damping_se, modes.direction_se, modes.shapes
+    from_information = np.zeros(modes.n, dtype=bool)
+    if out.se is not None:
+        with_se = fitted & np.isfinite(out.se[0]) & np.isfinite(out.se[1])
+        f_se, z_se = (np.where(with_se, new, old) for new, old in zip(out.se[:2], (f_se, z_se)))
+        if uncertainty == "information":
+            from_information = with_se
+    if directions:
+        # only for close modes (a group of several, where SSI's directions are pinned by little more
+        # than the difference of their poles) and only where the refinement is kept (a group it
+        # moved off SSI's frequencies keeps SSI's directions too)
+        close = np.zeros(modes.n, dtype=bool)
+        widths = {k: v for k, v in options.items() if k in ("half_width", "min_half_width_hz")}
+        for g in band_groups(modes.freq_hz, modes.damping, **widths):
+            close[g] = len(g) > 1
+        use = fitted & close
+        shapes = np.where(use[None, :], out.shapes, shapes)
+        if out.se is not None:
+            u_se = np.where(use & np.isfinite(out.se[2]) & (out.se[2] > 0), out.se[2], u_se)
+    return replace(modes, freq_hz=np.where(fitted, out.freq_hz, modes.freq_hz),
+                   damping=np.where(fitted, out.damping, modes.damping), shapes=shapes, freq_se=f_se,
+                   damping_se=z_se, direction_se=u_se, refined=fitted, from_information=from_information,
+                   input_level=np.where(fitted, out.levels[0], np.nan),
+                   input_level_se=np.where(fitted, out.levels[1], np.nan))
+
+
+def _reported(modes: _Modes, axes, lines, band, harmonics, rejected, n_seg, level, warnings) -> OutputOnlyModes:
+    """The modes reported, in order of frequency, with their intervals: tones, seeds the
+    refinement could not fit and poles on the band's edge set aside with a warning each."""
+    lo, hi = band
+    f_hat, z_hat = modes.freq_hz, modes.damping
     # a pole whose half-power band crosses the analysed band's edge is fitted on part of its peak
     # only: the background's slope at the edge reads as a heavily damped mode (session 12: 4.1-4.3 Hz
     # at 13-22 % damping, 2 of 40 records of structures unlike the paper's). Not a mode; said so.
@@ -463,42 +523,40 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     # an SSI mode the refinement took onto a line (SSI's own rule for its poles, :func:`at_milling_line`:
     # session 22, a real Hurco file's 264.7 Hz mode finished at 265.9 Hz and 0.08 %, beside the
     # 266.7 Hz tooth line, where SSI's own poles had been rejected as the line's)
-    tone = refined & (at_milling_line(f_hat, z_hat, lines) | (seeded & (z_hat < SEED_MIN_DAMPING)))
+    tone = modes.refined & (at_milling_line(f_hat, z_hat, lines) | (modes.seeded & (z_hat < SEED_MIN_DAMPING)))
     for k in np.flatnonzero(tone):
-        what = "seeded peak" if seeded[k] else "mode"
+        what = "seeded peak" if modes.seeded[k] else "mode"
         warnings.append(f"{what} refined to {f_hat[k]:.2f} Hz at {100 * z_hat[k]:.2f} % damping: a tone or a "
                         "milling line's remainder, not kept as a mode")
     # a seed the refinement could not fit has only its starting values (4.5 %, no error): no mode
+    unfitted_seed = modes.seeded & ~modes.refined
     for k in np.flatnonzero(unfitted_seed):
         warnings.append(f"seeded peak at {f_hat[k]:.2f} Hz not kept: the refinement could not fit it")
     for k in np.flatnonzero(~inside):
         warnings.append(f"pole at {f_hat[k]:.2f} Hz ({100 * z_hat[k]:.0f} % damping) not reported as a mode: its "
                         f"half-power band crosses the edge of the analysed band {lo:g}-{hi:g} Hz (widen the band "
                         "to identify it)")
-    inside = np.flatnonzero(inside & ~(tone | unfitted_seed))
-    inside = inside[np.argsort(f_hat[inside], kind="stable")]   # added modes come last: in order of frequency
-    f_hat, z_hat, shapes, support = f_hat[inside], z_hat[inside], shapes[:, inside], support[inside]
-    f_se, z_se, u_se, from_information = f_se[inside], z_se[inside], u_se[inside], from_information[inside]
-    in_level, in_level_se = in_level[inside], in_level_se[inside]
-    full_shapes = np.zeros((3, f_hat.size), dtype=complex)
-    full_shapes[axes] = shapes
-    directions = np.array([real_direction(full_shapes[:, k]) for k in range(f_hat.size)]).reshape(-1, 3)
+    kept = np.flatnonzero(inside & ~(tone | unfitted_seed))
+    m = modes.take(kept[np.argsort(f_hat[kept], kind="stable")])  # added modes come last: in order of frequency
+    full_shapes = np.zeros((3, m.n), dtype=complex)
+    full_shapes[axes] = m.shapes
+    directions = np.array([real_direction(full_shapes[:, k]) for k in range(m.n)]).reshape(-1, 3)
     # SSI's jackknife: Student t with n_seg - 1 degrees of freedom; the refinement's information:
     # normal, the damping's interval symmetric in its logarithm (the parameter it is fitted in)
-    f_iv, z_iv = t_interval(f_hat, f_se, n_seg, level), t_interval(z_hat, z_se, n_seg, level)
-    if np.any(from_information):
+    f_iv, z_iv = t_interval(m.freq_hz, m.freq_se, n_seg, level), t_interval(m.damping, m.damping_se, n_seg, level)
+    if np.any(m.from_information):
         zq = stats.norm.ppf(0.5 + 0.5 * level)
-        k = from_information
-        f_iv[k] = np.column_stack([f_hat[k] - zq * f_se[k], f_hat[k] + zq * f_se[k]])
+        k = m.from_information
+        f_iv[k] = np.column_stack([m.freq_hz[k] - zq * m.freq_se[k], m.freq_hz[k] + zq * m.freq_se[k]])
         with np.errstate(divide="ignore", invalid="ignore"):  # a zero damping (a line, untrusted) has none
-            log_se = z_se[k] / z_hat[k]
-        z_iv[k] = np.column_stack([z_hat[k] * np.exp(-zq * log_se), z_hat[k] * np.exp(zq * log_se)])
+            log_se = m.damping_se[k] / m.damping[k]
+        z_iv[k] = np.column_stack([m.damping[k] * np.exp(-zq * log_se), m.damping[k] * np.exp(zq * log_se)])
     return OutputOnlyModes(
-        freq_hz=f_hat, damping_ratio=z_hat, freq_se_hz=f_se, damping_se=z_se,
+        freq_hz=m.freq_hz, damping_ratio=m.damping, freq_se_hz=m.freq_se, damping_se=m.damping_se,
         freq_interval_hz=f_iv, damping_interval=z_iv,
-        directions=directions, shapes=full_shapes, support=support, harmonics=tuple(harmonics),
-        direction_se_rad=u_se, rejected_hz=rejected, band_hz=band, n_segments=n_seg, level=level, warnings=tuple(warnings),
-        input_level=in_level, input_level_log_se=in_level_se,
+        directions=directions, shapes=full_shapes, support=m.support, harmonics=tuple(harmonics),
+        direction_se_rad=m.direction_se, rejected_hz=rejected, band_hz=band, n_segments=n_seg, level=level,
+        warnings=tuple(warnings), input_level=m.input_level, input_level_log_se=m.input_level_se,
     )
 
 
@@ -550,32 +608,49 @@ def _reweight(x, fs, from_derivative, to_derivative, highpass_hz):
     return np.fft.irfft(spec * (1j * w) ** k, n=x.shape[-1], axis=-1)
 
 
-def _moved(out, f_ssi, f_se) -> np.ndarray:
-    """The mask of the SSI modes (shape as ``f_ssi``) whose refinement ``out`` (:func:`_ml_refine`)
-    moved their frequency by more than :data:`ML_MAX_SHIFT` SSI standard errors."""
+class _Refined(NamedTuple):
+    """What :func:`_ml_refine` returns, per mode: the starting modes, then those its scan added."""
+
+    freq_hz: np.ndarray
+    damping: np.ndarray
+    shapes: np.ndarray       # (n_channels, n), in the signal's unit
+    fitted: np.ndarray       # the group's fit succeeded
+    se: tuple | None         # standard errors of frequency (Hz), damping (ratio), direction (rad)
+    levels: tuple            # the background level at the mode and its log error (NaN where not fitted)
+    group: np.ndarray        # index of the fitted group
+
+    def take(self, idx) -> "_Refined":
+        return _Refined(self.freq_hz[idx], self.damping[idx], self.shapes[:, idx], self.fitted[idx],
+                        None if self.se is None else tuple(a[idx] for a in self.se),
+                        tuple(a[idx] for a in self.levels), self.group[idx])
+
+
+def _moved(out: "_Refined", f_ssi, f_se) -> np.ndarray:
+    """The mask of the SSI modes (shape as ``f_ssi``) whose refinement ``out`` moved their
+    frequency by more than :data:`ML_MAX_SHIFT` SSI standard errors."""
     n = f_ssi.size
-    shift = np.abs(out[0][:n] - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
-    return out[3][:n] & shift
+    shift = np.abs(out.freq_hz[:n] - f_ssi) > ML_MAX_SHIFT * np.where(np.isfinite(f_se), f_se, np.inf)
+    return out.fitted[:n] & shift
 
 
-def _merged(out, ev, redo_out, redo_ev, redo):
-    """The refinement ``out`` (:func:`_ml_refine`; ``ev`` its evidence or None) with the groups
-    holding a starting mode marked ``redo`` taken from ``redo_out`` (``redo_ev``), the refinement
-    of those groups alone: the starting modes in their order, then the modes the scans added
-    (``out``'s outside those groups, then ``redo_out``'s)."""
+def _merged(out: "_Refined", ev, redo_out: "_Refined", redo_ev, redo):
+    """The refinement ``out`` (``ev`` its evidence or None) with the groups holding a starting mode
+    marked ``redo`` taken from ``redo_out`` (``redo_ev``), the refinement of those groups alone:
+    the starting modes in their order, then the modes the scans added (``out``'s outside those
+    groups, then ``redo_out``'s)."""
     n = redo.size
     src = [(redo_out, redo_ev, k) if redo[k] else (out, ev, k) for k in range(n)]
-    src += [(out, ev, k) for k in range(n, out[0].size) if not redo[out[6][k]]]
-    src += [(redo_out, redo_ev, k) for k in range(n, redo_out[0].size)]
+    src += [(out, ev, k) for k in range(n, out.freq_hz.size) if not redo[out.group[k]]]
+    src += [(redo_out, redo_ev, k) for k in range(n, redo_out.freq_hz.size)]
 
     def pick(get):
         return np.array([get(o)[k] for o, _, k in src])
 
-    ses = None if out[4] is None or redo_out[4] is None else \
-        tuple(pick(lambda o, i=i: o[4][i]) for i in range(len(out[4])))
-    merged = (pick(lambda o: o[0]), pick(lambda o: o[1]), np.column_stack([o[2][:, k] for o, _, k in src]),
-              pick(lambda o: o[3]), ses, tuple(pick(lambda o, i=i: o[5][i]) for i in range(len(out[5]))),
-              pick(lambda o: o[6]))
+    ses = None if out.se is None or redo_out.se is None else \
+        tuple(pick(lambda o, i=i: o.se[i]) for i in range(len(out.se)))
+    merged = _Refined(pick(lambda o: o.freq_hz), pick(lambda o: o.damping),
+                      np.column_stack([o.shapes[:, k] for o, _, k in src]), pick(lambda o: o.fitted), ses,
+                      tuple(pick(lambda o, i=i: o.levels[i]) for i in range(len(out.levels))), pick(lambda o: o.group))
     if ev is None or redo_ev is None:
         return merged, None
     new_ev = {j: e[k] for j, (_, e, k) in enumerate(src) if k in e}
@@ -593,9 +668,7 @@ def _n_moved(out, f_ssi, f_se) -> int:
 def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segments, evidence=None,
                uncertainty: str = "information", **options):
     """Whittle-ML refinement (:func:`oma.output_only.ml.refine_modes_ml`) in unit-variance channels,
-    with its standard errors. Returns frequency, damping, shapes, the fitted mask and the standard
-    errors of frequency (Hz), damping (ratio) and direction (rad) (None where they could not be
-    computed).
+    with its standard errors (:class:`_Refined`).
 
     ``uncertainty``: ``'information'`` (default), the larger of the inverse Fisher information and
     the sandwich at the optimum (:func:`oma.output_only._ml_inference._information_se`); ``'jackknife'``, the
@@ -628,16 +701,16 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         v = u[:, k] * ch
         out[:, k] = v / np.linalg.norm(v) * (np.linalg.norm(shapes[:, k]) if k < f_hat.size else 1.0)
     if uncertainty == "information":
-        return f, z, out, fitted, (se[0], z * se[1], se[2]), levels, group
+        return _Refined(f, z, out, fitted, (se[0], z * se[1], se[2]), levels, group)
     if rep is None:
-        return f, z, out, fitted, None, levels, group
+        return _Refined(f, z, out, fitted, None, levels, group)
     # the jackknife spread of the direction's angle from the full-record one (rad)
     f_se = jackknife(rep[0])[1]
     z_se = jackknife(rep[1])[1]
     a = rep[2]
     cnt = np.isfinite(a).sum(axis=0)
     u_se = np.where(cnt >= 3, np.sqrt((cnt - 1) / np.maximum(cnt, 1) * np.nansum(a ** 2, axis=0)), np.nan)
-    return f, z, out, fitted, (f_se, z_se, u_se), levels, group
+    return _Refined(f, z, out, fitted, (f_se, z_se, u_se), levels, group)
 
 
 def _spectral_matrix(residuals, fs, nperseg: int):
@@ -678,9 +751,9 @@ def _fdd_shapes(residuals, fs, freq_hz, damping, ssi_shapes, *, segment_s: float
 
 
 def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order, n_segments, jackknife_now=True):
-    """SSI-cov modes with jackknife errors in ``[lo, hi)`` (see :func:`output_only_modes`); with
-    ``jackknife_now=False`` the errors are NaN and the last item (the segment correlations) lets
-    :func:`_ssi_jackknife` compute them later for the modes kept."""
+    """SSI-cov modes with jackknife errors in ``[lo, hi)`` (see :func:`output_only_modes`), the
+    number of segments, and what :func:`_ssi_jackknife` needs (the segment correlations): with
+    ``jackknife_now=False`` the errors are NaN, to be computed later for the modes kept."""
     f_pass = (0.8 * lo, min(1.25 * hi, 0.45 * fs))
     q = max(int(np.floor(fs / (4.0 * f_pass[1]))), 1)
     fsd = fs / q
@@ -715,11 +788,13 @@ def _band_modes(residuals, fs, lo, hi, *, first, last, cycles, lag_s, max_order,
     f_hat, z_hat, shapes, support = sel.freq_hz[own], sel.damping_ratio[own], sel.shapes[:, own], sel.support[own]
     n_seg = len(seg_w)
     ctx = (seg_corr, seg_w, fsd, opts, scale)
-    if not jackknife_now:
-        nan = np.full(f_hat.size, np.nan)
-        return f_hat, z_hat, shapes * scale[:, None], support, nan, nan.copy(), n_seg, nan.copy(), ctx
-    f_se, z_se, u_se = _ssi_jackknife(ctx, f_hat, shapes * scale[:, None])
-    return f_hat, z_hat, shapes * scale[:, None], support, f_se, z_se, n_seg, u_se, ctx
+    nan = np.full(f_hat.size, np.nan)
+    modes = _Modes(f_hat, z_hat, shapes * scale[:, None], support, nan, nan.copy(), nan.copy(),
+                   np.zeros(f_hat.size, dtype=bool))
+    if jackknife_now:
+        f_se, z_se, u_se = _ssi_jackknife(ctx, f_hat, modes.shapes)
+        modes = replace(modes, freq_se=f_se, damping_se=z_se, direction_se=u_se)
+    return modes, n_seg, ctx
 
 
 def _ssi_jackknife(ctx, f_hat, shapes):
