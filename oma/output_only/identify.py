@@ -12,7 +12,7 @@ force, the same records can be identified the force-based way and the two compar
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
@@ -214,6 +214,70 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         raise ValueError("identify needs at least one record")
     check_same_pose(records)  # cli.md: records of one pose
     fs = float(records[0].sample_rate_hz)
+    warnings: list[str] = []
+    quantity, signals, slices, axes = _motion_signals(records, fs, warnings)
+    rpm = [r.cut.spindle_rpm for r in records]
+    teeth = [r.tool.teeth for r in records]
+    signals, slices = _cut_windows(records, signals, slices, axes, fs, rpm, teeth, warnings)
+    for r, v in zip(records, rpm):
+        if v is None or not v > 0:
+            warnings.append(f"{r.name or 'record'}: no spindle speed; milling harmonics not removed")
+    try:
+        modes = output_only_modes(signals, fs, rpm, teeth, band_hz=band_hz, n_segments=n_segments, level=level,
+                                  refine_harmonics=refine_harmonics,
+                                  **{"derivative": MOTION_QUANTITIES.index(quantity), **mode_options})
+    except RecordError as exc:
+        if exc.file is not None:
+            raise
+        # the analysis knows signals, not files: the shortest record is the one too short
+        short = min(range(len(records)), key=lambda i: signals[i].shape[1])
+        raise RecordError(records[short].path, exc.field, exc.expected,
+                          f"{signals[short].shape[1] / fs:.3g} s of cut window (record too short)") from None
+    warnings += list(modes.warnings)
+    checks = _checked(records, modes, fs, axes, quantity, warnings)
+    if modes.n_modes == 0:
+        warnings.append("no mode found in the response")
+        sc = _Scaled(None, "none", None, None, np.zeros(0, dtype=bool), False, None, "resonance band")
+    else:
+        top = max_line_hz if max_line_hz is not None else 1.5 * band_hz[1]   # the scaling lines' limit
+        sc = _scaled(records, slices, modes, quantity, axes, scaling, coefficient_relative_sd, level, top,
+                     direction_sd, background_anisotropy, checks, fs, warnings)
+    stiffness = sc.stiffness
+    k = stiffness.stiffness_N_m if stiffness is not None else np.full(modes.n_modes, np.nan)
+    names = [r.name or f"record {i}" for i, r in enumerate(records)]
+    # lines the model does not explain (a mode too weak in the record for SSI to find, session 11:
+    # a 17 Hz mode under a tracker's rounding, the other two scaled "trusted") are not trusted
+    trusted = bool(modes.n_modes > 0 and stiffness is not None and not np.any(stiffness.too_far)
+                   and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se))
+                   and not stiffness.misfit > MAX_LINE_MISFIT and not sc.above and not checks.unsteady
+                   and not np.any(modes.damping_ratio < LOW_DAMPING) and not checks.peaks and not checks.unresolved
+                   and not checks.loose.size and not sc.levels_disagree)
+    if not trusted:
+        warnings.append("the identified model is NOT trusted (see the warnings above)")
+    model = ModalModel(
+        natural_frequency_hz=modes.freq_hz, damping_ratio=modes.damping_ratio,
+        stiffness_N_m=k if k.size else np.zeros(0),
+        directions=(stiffness.directions if stiffness is not None and stiffness.directions is not None
+                    else modes.directions).reshape(-1, 3),
+        joints_deg=next((r.joints_deg for r in records if r.joints_deg is not None), None),
+        source={"method": "oma-output-only-ssi-cov", "scaling": sc.used, "records": names, "trusted": trusted},
+    ) if modes.n_modes else ModalModel(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)),
+                                       source={"method": "oma-output-only-ssi-cov", "records": names})
+    scaled_by = tuple("none" if not np.isfinite(kk) else "background" if bg else "lines"
+                      for kk, bg in zip(k, sc.by_background))
+    return OutputOnlyIdentification(model=model, modes=modes, scaling=sc.used, stiffness=stiffness, trusted=trusted,
+                                    warnings=tuple(warnings), quantity=quantity, background=sc.background,
+                                    scaled_by=scaled_by, sample_rate_hz=fs,
+                                    lines_scaling=sc.lines_scaling if sc.background is not None else None,
+                                    unexplained_peaks=tuple(checks.peaks), unresolved_modes=tuple(checks.unresolved),
+                                    undetermined_directions=tuple(int(k) for k in checks.loose),
+                                    directions_source=sc.directions_source)
+
+
+def _motion_signals(records, fs, warnings):
+    """The motion channels of every record inside its cut window (constant ones as not recorded):
+    their quantity, the signals (3, n) with NaN rows for axes not recorded, the slices taken and
+    the recorded axes. Records that differ in rate, quantity or axes are a :class:`RecordError`."""
     quantity = None
     signals, slices = [], []
     for r in records:
@@ -226,7 +290,6 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
             raise RecordError(r.path, "signals.columns", f"{quantity} channels like the first record", q)
         signals.append(y)
         slices.append(sl)
-    warnings: list[str] = []
     for r, y in zip(records, signals):
         # a channel that never moves carries nothing (a dead sensor, a cable off): as not recorded
         # (session 23: an all-zero Z channel had raised an internal error in the channel scaling)
@@ -247,13 +310,18 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         warnings.append(f"no {missing} channel in the records: modes that move only along {missing} are not seen, "
                         f"and the model holds no flexibility along {missing} (the modes' directions are measured "
                         "in the recorded axes only)")
-    rpm = [r.cut.spindle_rpm for r in records]
-    teeth = [r.tool.teeth for r in records]
-    # a record that does not cut throughout (entry, exit; no window_s given): the tooth lines'
-    # amplitude is that of the cut only over part of it, so the lines and the modes are taken
-    # over the cut found from the tooth line's envelope (audit of session 15: +41-52 % stiffness);
-    # found from the recorded axes (session 23: a record without a Z channel, whose Z row is NaN,
-    # had raised an internal error here)
+    return quantity, signals, slices, axes
+
+
+def _cut_windows(records, signals, slices, axes, fs, rpm, teeth, warnings):
+    """The signals and slices cut to where the tool cuts.
+
+    A record that does not cut throughout (entry, exit; no window_s given) has the tooth lines'
+    amplitude of the cut over part of it only, so the lines and the modes are taken over the cut
+    found from the tooth line's envelope (audit of session 15: +41-52 % stiffness); found from the
+    recorded axes (session 23: a record without a Z channel, whose Z row is NaN, had raised an
+    internal error here)."""
+    signals, slices = list(signals), list(slices)
     for i, (r, v, z) in enumerate(zip(records, rpm, teeth)):
         info: dict = {}
         win = cutting_window(signals[i][axes], fs, v, z, info=info) if v is not None and v > 0 else None
@@ -271,21 +339,24 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         warnings.append(f"{r.name or 'record'}: the tooth-passing line is present only from {t0 + (start + a) / fs:.2f} "
                         f"to {t0 + (start + b) / fs:.2f} s of the record (the tool not cutting outside): modes and "
                         "stiffness taken over that window; give cut.window_s to choose it")
-    for r, v in zip(records, rpm):
-        if v is None or not v > 0:
-            warnings.append(f"{r.name or 'record'}: no spindle speed; milling harmonics not removed")
-    try:
-        modes = output_only_modes(signals, fs, rpm, teeth, band_hz=band_hz, n_segments=n_segments, level=level,
-                                  refine_harmonics=refine_harmonics,
-                                  **{"derivative": MOTION_QUANTITIES.index(quantity), **mode_options})
-    except RecordError as exc:
-        if exc.file is not None:
-            raise
-        # the analysis knows signals, not files: the shortest record is the one too short
-        short = min(range(len(records)), key=lambda i: signals[i].shape[1])
-        raise RecordError(records[short].path, exc.field, exc.expected,
-                          f"{signals[short].shape[1] / fs:.3g} s of cut window (record too short)") from None
-    warnings += list(modes.warnings)
+    return signals, slices
+
+
+class _Checks(NamedTuple):
+    """What :func:`_checked` found in the identified modes, and the residuals it read."""
+
+    unsteady: list          # records whose tooth line is not steady
+    peaks: list             # residual peaks no mode explains
+    unresolved: list        # modes whose band holds a second shape
+    loose: np.ndarray       # indices of modes whose direction the record does not pin
+    residuals: list
+    lines: np.ndarray
+
+
+def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _Checks:
+    """The checks of the modes that decide trust, each with its warning: unsteady milling lines,
+    tones, residual peaks no mode explains, modes that hold two, directions the record does not
+    pin."""
     unsteady = [h for h in modes.harmonics if not h.steady]
     for r, h in zip(records, modes.harmonics):
         st = h.steadiness
@@ -328,107 +399,90 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                         f"{np.degrees(modes.direction_se_rad[k]):.0f} degrees (standard error, more than "
                         f"{MAX_DIRECTION_SE_DEG:.0f}): the record does not pin it (a spurious mode, one mode taken "
                         "for two, or a tone); the model is not trusted")
-    stiffness = None
-    used = "none"
-    background = None
-    lines_scaling = None
+    return _Checks(unsteady, peaks, unresolved, loose, residuals, lines)
+
+
+class _Scaled(NamedTuple):
+    """The modes' scale (:func:`_scaled`)."""
+
+    stiffness: StiffnessScaling | None
+    used: str                          # 'force_model', 'measured_force' or 'none'
+    background: BackgroundLevel | None  # the background's level, where it scales a mode
+    lines_scaling: StiffnessScaling | None  # the lines' own scaling, before the background's
+    by_background: np.ndarray          # the modes scaled by the background's level
+    levels_disagree: bool              # the background's levels along the modes the lines scale disagree
+    above: str | None                  # the warning that lines above the band carry other modes
+    directions_source: str             # 'resonance band' or 'mass lines'
+
+
+def _scaled(records, slices, modes: OutputOnlyModes, quantity, axes, scaling, coefficient_relative_sd, level, top,
+            direction_sd, background_anisotropy, checks: _Checks, fs, warnings) -> _Scaled:
+    """The modes scaled by the tooth-passing lines (:func:`_scale`), those the lines scale poorly by
+    the background force's level, each with its warnings."""
     by_background = np.zeros(modes.n_modes, dtype=bool)
-    levels_disagree = False
-    above = None
+    stiffness, why = _scale(records, slices, modes, quantity, axes, scaling, coefficient_relative_sd, level, top,
+                            direction_sd)
+    if stiffness is None:
+        warnings.append(f"modes not scaled: {why}")
+        return _Scaled(None, "none", None, None, by_background, False, None, "resonance band")
+    residuals, lines = checks.residuals, checks.lines
     directions_source = "resonance band"
-    if modes.n_modes == 0:
-        warnings.append("no mode found in the response")
-    else:
-        top = max_line_hz if max_line_hz is not None else 1.5 * band_hz[1]   # the scaling lines' limit
-        stiffness, why = _scale(records, slices, modes, quantity, axes, scaling, coefficient_relative_sd, level, top,
-                                direction_sd)
-        if stiffness is None:
-            warnings.append(f"modes not scaled: {why}")
+    levels, mass_lines = None, False
+    if background_anisotropy is not None and modes.n_modes > 1:
+        levels, mass_lines = _background_levels(residuals, fs, modes, axes, quantity, lines, stiffness.too_far, top)
+        if mass_lines:
+            # the lines solved again with the directions the mass lines turn, the background free to
+            # differ between channels (session 19: the close pair's from the resonance band are tilted
+            # by 5-30 degrees and a mode the lines scale takes the response of its tilted neighbour;
+            # turned under the levels' isotropy instead, oblique modes came out 6-14 % soft under a
+            # 20 % anisotropic background)
+            turned = mass_line_directions(residuals, fs, modes.freq_hz, modes.damping_ratio,
+                                          modes.directions[:, axes], modes.direction_se_rad,
+                                          derivative=MOTION_QUANTITIES.index(quantity), lines_hz=lines,
+                                          band_hz=(modes.band_hz[0], top))
+            again = None if turned is None else _scale(
+                records, slices, _with_directions(modes, axes, turned[0]), quantity, axes, scaling,
+                coefficient_relative_sd, level, top, direction_sd)[0]
+            if again is not None:
+                stiffness, directions_source = again, "mass lines"
+    for k in np.flatnonzero(stiffness.too_far):
+        near = stiffness.lines_hz[np.argmin(np.abs(stiffness.lines_hz - modes.freq_hz[k]))]
+        sd = stiffness.statistical_relative_sd[k]
+        warnings.append(
+            f"mode at {modes.freq_hz[k]:.2f} Hz: the tooth-passing lines (nearest {near:.1f} Hz) are too far "
+            f"from it or force it too weakly to scale it well (stiffness uncertainty "
+            + (f"{100 * sd:.0f} %" if np.isfinite(sd) and sd < 100 else "unbounded")
+            + " from the data alone)")
+    lines_scaling = stiffness
+    background = None
+    levels_disagree = False
+    # the background's level along each mode the lines scale: it scales those they cannot, and where
+    # they scale all, a level far off the others' says one of them is wrong (session 18: under a red
+    # background the lines gave Z 73 % soft with a stated 19 %, trusted; its level came out 10x under
+    # X's at the same frequency)
+    if levels is not None:
+        background = background_level(stiffness, *levels, anisotropy_log_sd=background_anisotropy,
+                                      source="mass lines" if mass_lines else "resonances")
+        if background is not None and np.any(stiffness.too_far):
+            stiffness, by_background = scale_by_background(stiffness, background, *levels, level=level)
+        if np.any(by_background):
+            warnings += _background_warnings(background, modes, stiffness, by_background, fs, background_anisotropy)
         else:
-            used = scaling
-            levels, mass_lines = None, False
-            if background_anisotropy is not None and modes.n_modes > 1:
-                levels, mass_lines = _background_levels(residuals, fs, modes, axes, quantity, lines,
-                                                        stiffness.too_far, top)
-                if mass_lines:
-                    # the lines solved again with the directions the mass lines turn, the background
-                    # free to differ between channels (session 19: the close pair's from the
-                    # resonance band are tilted by 5-30 degrees and a mode the lines scale takes the
-                    # response of its tilted neighbour; turned under the levels' isotropy instead,
-                    # oblique modes came out 6-14 % soft under a 20 % anisotropic background)
-                    turned = mass_line_directions(residuals, fs, modes.freq_hz, modes.damping_ratio,
-                                                  modes.directions[:, axes], modes.direction_se_rad,
-                                                  derivative=MOTION_QUANTITIES.index(quantity), lines_hz=lines,
-                                                  band_hz=(modes.band_hz[0], top))
-                    again = None if turned is None else _scale(
-                        records, slices, _with_directions(modes, axes, turned[0]), quantity, axes, scaling,
-                        coefficient_relative_sd, level, top, direction_sd)[0]
-                    if again is not None:
-                        stiffness, directions_source = again, "mass lines"
-            for k in np.flatnonzero(stiffness.too_far):
-                near = stiffness.lines_hz[np.argmin(np.abs(stiffness.lines_hz - modes.freq_hz[k]))]
-                sd = stiffness.statistical_relative_sd[k]
-                warnings.append(
-                    f"mode at {modes.freq_hz[k]:.2f} Hz: the tooth-passing lines (nearest {near:.1f} Hz) are too far "
-                    f"from it or force it too weakly to scale it well (stiffness uncertainty "
-                    + (f"{100 * sd:.0f} %" if np.isfinite(sd) and sd < 100 else "unbounded")
-                    + " from the data alone)")
-            lines_scaling = stiffness
-            # the background's level along each mode the lines scale: it scales those they cannot,
-            # and where they scale all, a level far off the others' says one of them is wrong
-            # (session 18: under a red background the lines gave Z 73 % soft with a stated 19 %,
-            # trusted; its level came out 10x under X's at the same frequency)
-            if levels is not None:
-                background = background_level(stiffness, *levels, anisotropy_log_sd=background_anisotropy,
-                                              source="mass lines" if mass_lines else "resonances")
-                if background is not None and np.any(stiffness.too_far):
-                    stiffness, by_background = scale_by_background(stiffness, background, *levels, level=level)
-                if np.any(by_background):
-                    warnings += _background_warnings(background, modes, stiffness, by_background, fs,
-                                                     background_anisotropy)
-                else:
-                    levels_disagree = background is not None and not (
-                        background.consistent if mass_lines else
-                        consistent_up_to_colour(background, modes.freq_hz, anisotropy_log_sd=background_anisotropy))
-                    if levels_disagree:
-                        warnings.append(_disagreement_warning(background, modes, fs, background_anisotropy))
-                    background = None
-            if stiffness.misfit > MAX_LINE_MISFIT:
-                warnings.append(f"the response lines disagree with the force model by more than their noise "
-                                f"(reduced chi-square {stiffness.misfit:.1f}): coefficients, runout or a mode "
-                                "missing from the model")
-            above = _lines_above(records, slices, modes, quantity, axes, scaling, stiffness, top, fs)
-            if above:
-                warnings.append(above)
-    k = stiffness.stiffness_N_m if stiffness is not None else np.full(modes.n_modes, np.nan)
-    names = [r.name or f"record {i}" for i, r in enumerate(records)]
-    # lines the model does not explain (a mode too weak in the record for SSI to find, session 11:
-    # a 17 Hz mode under a tracker's rounding, the other two scaled "trusted") are not trusted
-    trusted = bool(modes.n_modes > 0 and stiffness is not None and not np.any(stiffness.too_far)
-                   and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se))
-                   and not stiffness.misfit > MAX_LINE_MISFIT and not above and not unsteady
-                   and not np.any(modes.damping_ratio < LOW_DAMPING) and not peaks and not unresolved
-                   and not loose.size and not levels_disagree)
-    if not trusted:
-        warnings.append("the identified model is NOT trusted (see the warnings above)")
-    model = ModalModel(
-        natural_frequency_hz=modes.freq_hz, damping_ratio=modes.damping_ratio,
-        stiffness_N_m=k if k.size else np.zeros(0),
-        directions=(stiffness.directions if stiffness is not None and stiffness.directions is not None
-                    else modes.directions).reshape(-1, 3),
-        joints_deg=next((r.joints_deg for r in records if r.joints_deg is not None), None),
-        source={"method": "oma-output-only-ssi-cov", "scaling": used, "records": names, "trusted": trusted},
-    ) if modes.n_modes else ModalModel(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)),
-                                       source={"method": "oma-output-only-ssi-cov", "records": names})
-    scaled_by = tuple("none" if not np.isfinite(kk) else "background" if bg else "lines"
-                      for kk, bg in zip(k, by_background))
-    return OutputOnlyIdentification(model=model, modes=modes, scaling=used, stiffness=stiffness, trusted=trusted,
-                                    warnings=tuple(warnings), quantity=quantity, background=background,
-                                    scaled_by=scaled_by, sample_rate_hz=fs,
-                                    lines_scaling=lines_scaling if background is not None else None,
-                                    unexplained_peaks=tuple(peaks), unresolved_modes=tuple(unresolved),
-                                    undetermined_directions=tuple(int(k) for k in loose),
-                                    directions_source=directions_source)
+            levels_disagree = background is not None and not (
+                background.consistent if mass_lines else
+                consistent_up_to_colour(background, modes.freq_hz, anisotropy_log_sd=background_anisotropy))
+            if levels_disagree:
+                warnings.append(_disagreement_warning(background, modes, fs, background_anisotropy))
+            background = None
+    if stiffness.misfit > MAX_LINE_MISFIT:
+        warnings.append(f"the response lines disagree with the force model by more than their noise "
+                        f"(reduced chi-square {stiffness.misfit:.1f}): coefficients, runout or a mode "
+                        "missing from the model")
+    above = _lines_above(records, slices, modes, quantity, axes, scaling, stiffness, top, fs)
+    if above:
+        warnings.append(above)
+    return _Scaled(stiffness, scaling, background, lines_scaling, by_background, levels_disagree, above,
+                   directions_source)
 
 
 def _background_levels(residuals, fs, modes: OutputOnlyModes, axes, quantity, lines, too_far, top_hz):
