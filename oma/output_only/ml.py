@@ -279,50 +279,108 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     f0 = np.asarray(freq_hz, dtype=float)
     z0 = np.asarray(damping, dtype=float)
     u0 = np.asarray(directions, dtype=float)
-    fs = float(sample_rate_hz)
-    l = u0.shape[0]
-    f_out, z_out, u_out = f0.copy(), z0.copy(), u0.copy()
-    ok = np.zeros(f0.size, dtype=bool)
-    reps = None if segments is None else np.full((3, len(segments), f0.size), np.nan)
-    se = np.full((4, f0.size), np.nan)
-    level = np.full(f0.size, np.nan)
-    beta, beta_se = np.full(f0.size, np.nan), np.full(f0.size, np.nan)
-    dscale = np.ones(l) if direction_scale is None else np.asarray(direction_scale, dtype=float)
-    if f0.size == 0:
-        if slopes is not None:
-            slopes.update(beta=beta, beta_se=beta_se)
-        return RefinedModes(f_out, z_out, u_out, ok, reps, se, level, np.zeros(0, dtype=int))
-
-    ffts = _spectra(residuals, fs)
-    gapped = []
-    for i, a, b in segments or ():
-        rs = [np.asarray(r, dtype=float) for r in residuals]
-        r = rs[i].copy()
-        r[:, a:b] = 0.0
-        rs[i] = r * np.sqrt(r.shape[1] / max(r.shape[1] - (b - a), 1))
-        gapped.append(_spectra(rs, fs))
-    hw = np.maximum(half_width * z0 * f0, min_half_width_hz)
-    lo, hi = f0 - hw, f0 + hw
     groups = band_groups(f0, z0, half_width=half_width, min_half_width_hz=min_half_width_hz)
-    lines = np.asarray(lines_hz, dtype=float).ravel()
     kinds = (False, "known") if residual_terms == "auto" else \
         tuple(residual_terms) if isinstance(residual_terms, (tuple, list)) else (residual_terms,)
-    dropped = np.zeros(f0.size, dtype=bool)
-    duplicated = np.zeros(f0.size, dtype=bool)
-    left_band = np.zeros(f0.size, dtype=bool)
-    added = np.zeros(f0.size, dtype=bool)
-    group = np.zeros(f0.size, dtype=int)
-    for g in groups:
-        group[g] = min(g)
-    only = None if fit_only is None else np.asarray(fit_only, dtype=bool)
+    run = _Refinement(f0, z0, u0, groups, n_segments=None if segments is None else len(segments),
+                      derivative=derivative, lines_hz=lines_hz, half_width=half_width,
+                      min_half_width_hz=min_half_width_hz, line_guard_hz=line_guard_hz, max_iter=max_iter,
+                      kinds=kinds, input_slope=input_slope, direction_scale=direction_scale)
+    if f0.size:
+        run.read(residuals, float(sample_rate_hz), segments)
+        only = None if fit_only is None else np.asarray(fit_only, dtype=bool)
+        for g in groups:
+            g = np.array(g)
+            if only is None or only[g].any():
+                run.refine(g, evidence=evidence, add_missing=add_missing, band_hz=band_hz, slopes=slopes is not None)
+        if evidence is not None:
+            evidence.update(dropped=run.dropped, duplicate=run.duplicated, left_band=run.left_band, added=run.added)
+    if slopes is not None:
+        slopes.update(beta=run.beta, beta_se=run.beta_se)
+    return RefinedModes(run.f_out, run.z_out, run.u_out, run.ok, run.reps, run.se, run.level, run.group)
 
-    def fit_chain(g, w, x, ug, blocks, gone=()):
-        """The group's fits along the nested tail models; the chosen one (by BIC, the known tails
-        preferred to none); None if none.
-        ``blocks``: the pooling of the bins ``w`` stand for (None: none). ``gone``: modes outside
-        ``g`` that are no tails of it, besides those dropped (no modes)."""
+
+class _Bins(NamedTuple):
+    """A group's band as fitted (:meth:`_Refinement.bins`): the bins' angular frequencies (the
+    blocks' where pooled), their DFT vectors (the blocks' periodogram roots) in channels scaled to
+    unit power in the band, that scale, and the pooling (None: none)."""
+
+    w: np.ndarray
+    x: np.ndarray
+    scale: np.ndarray
+    blocks: object
+
+
+class _Refinement:
+    """One :func:`refine_modes_ml` call: the starting modes (``f0``, ``z0``, ``u0``, each band's
+    half-width ``hw``; the scan's candidates are appended while judged), the records' spectra, and
+    the results per mode (grown by the modes the scan adds). Each group goes through
+    :meth:`refine`: its fit along the tail models, the evidence's backward elimination, the modes
+    taken out of their bands dropped, the scan for a mode SSI missed, the finish, the result."""
+
+    def __init__(self, f0, z0, u0, groups, *, n_segments, derivative, lines_hz, half_width, min_half_width_hz,
+                 line_guard_hz, max_iter, kinds, input_slope, direction_scale):
+        self.f0, self.z0, self.u0 = f0, z0, u0
+        self.hw = np.maximum(half_width * z0 * f0, min_half_width_hz)
+        self.half_width, self.min_half_width_hz = half_width, min_half_width_hz
+        self.derivative, self.max_iter, self.kinds, self.input_slope = derivative, max_iter, kinds, input_slope
+        self.lines = np.asarray(lines_hz, dtype=float).ravel()
+        self.line_guard_hz = line_guard_hz
+        n, l = f0.size, u0.shape[0]
+        self.dscale = np.ones(l) if direction_scale is None else np.asarray(direction_scale, dtype=float)
+        self.f_out, self.z_out, self.u_out = f0.copy(), z0.copy(), u0.copy()
+        self.ok = np.zeros(n, dtype=bool)
+        self.reps = None if n_segments is None else np.full((3, n_segments, n), np.nan)
+        self.se = np.full((4, n), np.nan)
+        self.level = np.full(n, np.nan)
+        self.beta, self.beta_se = np.full(n, np.nan), np.full(n, np.nan)
+        self.dropped = np.zeros(n, dtype=bool)
+        self.duplicated = np.zeros(n, dtype=bool)
+        self.left_band = np.zeros(n, dtype=bool)
+        self.added = np.zeros(n, dtype=bool)
+        self.group = np.zeros(n, dtype=int)
+        for g in groups:
+            self.group[g] = min(g)
+
+    def read(self, residuals, fs, segments):
+        """The records' spectra, and with ``segments`` each delete-one-segment replicate's."""
+        self.ffts = _spectra(residuals, fs)
+        self.gapped = []
+        for i, a, b in segments or ():
+            rs = [np.asarray(r, dtype=float) for r in residuals]
+            r = rs[i].copy()
+            r[:, a:b] = 0.0
+            rs[i] = r * np.sqrt(r.shape[1] / max(r.shape[1] - (b - a), 1))
+            self.gapped.append(_spectra(rs, fs))
+
+    def band(self, g) -> tuple:
+        """The band of the modes ``g``, Hz."""
+        return (self.f0[g] - self.hw[g]).min(), (self.f0[g] + self.hw[g]).max()
+
+    def bins(self, g, band) -> tuple:
+        """The band's bins (:class:`_Bins`) and the group's starting directions in its channels.
+        The channels are scaled to unit power in the band, so that a mode's direction there is not
+        dominated by a channel that is loud elsewhere in the record (where a small error of the
+        starting direction would be magnified); the bins are pooled into blocks where the band
+        holds many (:mod:`oma.output_only.blocks`, laid out around every mode's start)."""
+        w, x = _band_bins(self.ffts, *band, self.lines, self.line_guard_hz)
+        scale = np.sqrt(np.mean(np.abs(x) ** 2, axis=0)) if x.size else np.ones(self.u0.shape[0])
+        scale = np.where(scale > 0, scale, 1.0)
+        ug = self.u0[:, g] / scale[:, None]
+        x = x / scale
+        blocks = block_bins(w, self.f0, self.z0)
+        if blocks is not None:
+            w, x = blocks.w, pool(blocks, x)
+        return _Bins(w, x, scale, blocks), ug / np.linalg.norm(ug, axis=0)
+
+    def chain(self, g, bins: _Bins, ug, *, gone=(), tail_scale=None):
+        """The group's fits along the nested tail models and the chosen one (by BIC, the known tails
+        preferred to none); None if none. ``gone``: modes outside ``g`` that are no tails of it,
+        besides those dropped. ``tail_scale``: the channel scale the known tails are put in
+        (default the bins')."""
+        f0, z0, u0 = self.f0, self.z0, self.u0
         fits, by_kind = [], {}
-        for r in kinds:
+        for r in self.kinds:
             # each richer model started from the optimum of the model it extends (same spectrum,
             # so its fit can only improve the likelihood); the first from SSI's directions and, for
             # close modes, also from their symmetric orthogonalisation (SSI mixes the directions of
@@ -334,12 +392,14 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 # the other modes' tails: not those dropped (session 23, the extra case's seed 73:
                 # the 70 Hz mode's group, refitted without the true mode's SSI candidate, had it
                 # back as a known tail and fitted its other candidate as a hump beside it)
-                others = np.setdiff1d(np.flatnonzero(~dropped), np.concatenate([g, np.asarray(gone, dtype=int)]))
+                others = np.setdiff1d(np.flatnonzero(~self.dropped), np.concatenate([g, np.asarray(gone, dtype=int)]))
                 if others.size == 0:
                     continue  # no mode outside the group: the constant background is the same model
-                tails = _known_tails(w, (f0[others], z0[others], u0[:, others]), scale)
-            cands = [_fit_group(w, x, f0[g], z0[g], st, derivative, max_iter=max_iter, residuals=r, previous=prev,
-                                tails=tails, slope=input_slope, weight=None if blocks is None else blocks.n)
+                tails = _known_tails(bins.w, (f0[others], z0[others], u0[:, others]),
+                                     bins.scale if tail_scale is None else tail_scale)
+            cands = [_fit_group(bins.w, bins.x, f0[g], z0[g], st, self.derivative, max_iter=self.max_iter, residuals=r,
+                                previous=prev, tails=tails, slope=self.input_slope,
+                                weight=None if bins.blocks is None else bins.blocks.n)
                      for st in starts]
             cands = [ft for ft in cands if ft is not None]
             if cands:
@@ -353,46 +413,43 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         cands = [ft for ft in fits if not (KNOWN_TAILS_ALWAYS and ft[5].q == 0 and "known" in by_kind)] or fits
         return fits, min(cands, key=lambda ft: ft[3] + 0.5 * _n_params(ft[5]) * np.log(ft[5].n_bins))
 
-    def group_bins(g, band):
-        """The band's bins, its DFT vectors in channels scaled to unit power in the band (a mode's
-        direction there is not dominated by a channel that is loud elsewhere in the record, where
-        a small error of the starting direction would be magnified), the scale, the group's
-        starting directions in those channels, and the blocks the bins are pooled into where
-        the band holds many (:mod:`oma.output_only.blocks`, laid out around every mode's start:
-        then ``w`` are the blocks' and the DFT vectors the roots of their periodogram matrices)."""
-        w, x = _band_bins(ffts, *band, lines, line_guard_hz)
-        scale = np.sqrt(np.mean(np.abs(x) ** 2, axis=0)) if x.size else np.ones(l)
-        scale = np.where(scale > 0, scale, 1.0)
-        ug = u0[:, g] / scale[:, None]
-        x = x / scale
-        blocks = block_bins(w, f0, z0)
-        if blocks is not None:
-            w, x = blocks.w, pool(blocks, x)
-        return w, x, scale, ug / np.linalg.norm(ug, axis=0), blocks
-
-    for g in groups:
-        g = np.array(g)
-        if only is not None and not only[g].any():
-            continue
-        gid = int(group[g[0]])
-        band = (lo[g].min(), hi[g].max())
-        w, x, scale, ug, blocks = group_bins(g, band)
-        if x.size == 0:
-            continue
-        chain = fit_chain(g, w, x, ug, blocks)
+    def refine(self, g, *, evidence, add_missing, band_hz, slopes: bool):
+        """Refine the group of starting modes ``g`` (module docstring; :func:`refine_modes_ml`)."""
+        gid = int(self.group[g[0]])
+        band = self.band(g)
+        bins, ug = self.bins(g, band)
+        if bins.x.size == 0:
+            return
+        chain = self.chain(g, bins, ug)
         if chain is None:
-            continue
+            return
+        if evidence is not None:
+            g, ug, chain = self.eliminate(g, ug, bins, chain, evidence)
+            if chain is None or not g.size:
+                return
+        if not _within_bands(chain[1], g, self.f0, self.hw):
+            g, ug, chain = self.without_left(g, ug, bins, chain)
+        if add_missing is not None and not np.any(np.abs(chain[1][0] - self.f0[g]) > self.hw[g] / 2):
+            g, band, bins, chain = self.scan(g, gid, band, bins, chain, evidence, add_missing, band_hz)
+        fit = self.finished(chain[1], g, bins)
+        if _within_bands(fit, g, self.f0, self.hw):
+            self.store(g, fit, band, bins, slopes)
+
+    def eliminate(self, g, ug, bins: _Bins, chain, evidence: dict):
+        """The evidence's backward elimination: each mode judged against the group without it
+        (:func:`_mode_gain`; the penalty that of the mode's own parameters: frequency, damping,
+        direction, input variance), one mode dropped and the group refitted without it, the rest
+        judged again, until every mode left is supported or alone. Returns the modes left, their
+        starting directions and the group's chain (None: no fit without the dropped)."""
         fits, fit = chain
-        while evidence is not None and g.size:
-            # each mode against the group without it (:func:`_mode_gain`); the penalty is that of
-            # the mode's own parameters (frequency, damping, direction, input variance)
+        while g.size:
             ref_fit = next((ft for ft in fits if ft[5].q and ft[5].coherent), fit)
             without = [{} for _ in g]   # each mode's evidence refit: the group's others without it
             penalty = _mode_penalty(fit[5])
             for j, k in enumerate(g):
                 if ref_fit[5].m == 1 and not ref_fit[5].q and not ref_fit[5].noise:
                     continue
-                gain = _mode_gain(fits, fit, j, x, refit=without[j], penalty=penalty)
+                gain = _mode_gain(fits, fit, j, bins.x, refit=without[j], penalty=penalty)
                 if gain is not None:
                     evidence[int(k)] = (gain, penalty)
             # one mode goes, refitted without, and the rest are judged again (backward elimination:
@@ -409,6 +466,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
             # candidates for one 70 Hz peak, gains 4.6 and 4.7 against 16.4, had left the other
             # refitted from 82 Hz stuck there). "Refits": the evidence's refit, from the fit less
             # the mode
+            f0, hw = self.f0, self.hw
             margin = np.array([evidence[int(k)][0] - evidence[int(k)][1] if int(k) in evidence else np.inf
                                for k in g])
             others = [np.delete(g, j) for j in range(g.size)]
@@ -424,132 +482,137 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                 break
             j = int(np.flatnonzero(candidates)[np.argmin(margin[candidates])])
             keep = np.arange(g.size) != j
-            dropped[g[j]] = True
-            duplicated[g[j]] = duplicate[j]
-            chain = fit_chain(g[keep], w, x, ug[:, keep], blocks) if keep.any() else None
+            self.dropped[g[j]] = True
+            self.duplicated[g[j]] = duplicate[j]
+            chain = self.chain(g[keep], bins, ug[:, keep]) if keep.any() else None
             g, ug = g[keep], ug[:, keep]
             if chain is None:
                 break
             fits, fit = chain
-        if chain is None or not g.size:
-            continue
-        if not _within_bands(fit, g, f0, hw):
-            # the group's fit took modes out of their bands, or to a damping no SSI pole of a mode
-            # has (:func:`_left_band`): what the likelihood found there is background, not a mode
-            # at SSI's pole. The group refitted without them (again while others leave) is taken
-            # when it keeps the rest in their bands, and those modes are dropped; else the group
-            # stays unrefined, as before. Session 23, the extra case's seed 98: weak poles at 64.1
-            # and 84.4 Hz (SSI support 0.30 and 0.33, each gaining 56-86 against a penalty of 17)
-            # became humps of 19 and 36 % damping at 56.5 and 83.1 Hz; the group went unrefined,
-            # the true 70 Hz mode with it, and both were reported as modes
-            g_k, ug_k, chain_k = g, ug, (fits, fit)
-            while not _within_bands(chain_k[1], g_k, f0, hw):
-                left = _left_band(chain_k[1], g_k, f0, hw)
-                if left.all() or not left.any():
-                    chain_k = None
-                    break
-                g_k, ug_k = g_k[~left], ug_k[:, ~left]
-                chain_k = fit_chain(g_k, w, x, ug_k, blocks, gone=np.setdiff1d(g, g_k))
-                if chain_k is None:
-                    break
-            if chain_k is not None:
-                gone = np.setdiff1d(g, g_k)
-                dropped[gone] = left_band[gone] = True
-                g, ug, (fits, fit) = g_k, ug_k, chain_k
+        return g, ug, chain
+
+    def without_left(self, g, ug, bins: _Bins, chain):
+        """The group whose fit took modes out of their bands, or to a damping no SSI pole of a mode
+        has (:func:`_left_band`), refitted without them (again while others leave), taken when it
+        keeps the rest in their bands, those modes dropped; else the group as it was (left
+        unrefined). What the likelihood found there is background, not a mode at SSI's pole.
+        Session 23, the extra case's seed 98: weak poles at 64.1 and 84.4 Hz (SSI support 0.30 and
+        0.33, each gaining 56-86 against a penalty of 17) became humps of 19 and 36 % damping at
+        56.5 and 83.1 Hz; the group went unrefined, the true 70 Hz mode with it, and both were
+        reported as modes."""
+        g_k, ug_k, chain_k = g, ug, chain
+        while not _within_bands(chain_k[1], g_k, self.f0, self.hw):
+            left = _left_band(chain_k[1], g_k, self.f0, self.hw)
+            if left.all() or not left.any():
+                return g, ug, chain
+            g_k, ug_k = g_k[~left], ug_k[:, ~left]
+            chain_k = self.chain(g_k, bins, ug_k, gone=np.setdiff1d(g, g_k))
+            if chain_k is None:
+                return g, ug, chain
+        gone = np.setdiff1d(g, g_k)
+        self.dropped[gone] = self.left_band[gone] = True
+        return g_k, ug_k, chain_k
+
+    def scan(self, g, gid, band, bins: _Bins, chain, evidence, add_missing, band_hz):
+        """The scan for a mode the group's model leaves unexplained (SSI formed no cluster for it):
+        the group refitted with it, on a band widened to hold the candidate's own band (the refit
+        may move it: once re-centred where it went), kept when the likelihood gains more than the
+        mode's BIC penalty (the gate of every mode) and it is a mode of its own
+        (:func:`_new_mode_apart`). Returns the group, its band, bins and chain: with the mode
+        added, or as they were."""
+        fits, fit = chain
         f, z, u, fun, px, mod = fit
-        if add_missing is not None and not np.any(np.abs(f - f0[g]) > hw[g] / 2):
-            found = _missing_mode(w, x, px, mod, band, within=band_hz)
-            if found is not None and found[0] > 1.0 + add_missing / np.sqrt(found[1]):
-                # a mode the group's model leaves unexplained (SSI formed no cluster for it): the
-                # group refitted with it, on a band widened to hold the candidate's own band (the
-                # refit may move it: once re-centred where it went), kept when the likelihood gains
-                # more than the mode's BIC penalty (the gate of every mode) and it is a mode of its
-                # own (:func:`_new_mode_apart`)
-                _, _, fc, zc, uc = found
-                uc = uc * scale
-                f0, z0 = np.append(f0, fc), np.append(z0, zc)
-                u0 = np.column_stack([u0, uc / np.linalg.norm(uc)])
-                hw, lo, hi = np.append(hw, 0.0), np.append(lo, 0.0), np.append(hi, 0.0)
-                g_c = np.append(g, f0.size - 1)
-                for _attempt in range(2):
-                    hw[-1] = max(half_width * z0[-1] * f0[-1], min_half_width_hz)
-                    lo[-1], hi[-1] = f0[-1] - hw[-1], f0[-1] + hw[-1]
-                    band_c = (min(band[0], lo[-1]), max(band[1], hi[-1]))
-                    w_c, x_c, scale_c, ug_c, blocks_c = group_bins(g_c, band_c)
-                    chain_c = fit_chain(g_c, w_c, x_c, ug_c, blocks_c)
-                    if chain_c is not None and not band_c[0] <= chain_c[1][0][-1] <= band_c[1]:
-                        chain_c = None   # the fit took it out of the band: not a mode of this band
-                    if chain_c is None or abs(chain_c[1][0][-1] - f0[-1]) <= hw[-1] / 2:
-                        break
-                    f0[-1], z0[-1] = chain_c[1][0][-1], float(np.clip(chain_c[1][1][-1], 0.005, 0.2))
-                gain = penalty = None
-                if chain_c is not None:
-                    fits_c, fit_c = chain_c
-                    penalty = _mode_penalty(fit_c[5])
-                    gain = _mode_gain(fits_c, fit_c, g_c.size - 1, x_c, penalty=penalty)
-                apart = chain_c is not None and _new_mode_apart(fit_c, g_c, f0, z0, lines)
-                if gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, f0, hw):
-                    f_out, z_out = np.append(f_out, f0[-1]), np.append(z_out, z0[-1])
-                    u_out = np.column_stack([u_out, u0[:, -1]])
-                    ok, dropped, added = np.append(ok, False), np.append(dropped, False), np.append(added, True)
-                    duplicated, group = np.append(duplicated, False), np.append(group, gid)
-                    left_band = np.append(left_band, False)
-                    se = np.column_stack([se, np.full(4, np.nan)])
-                    level = np.append(level, np.nan)
-                    beta, beta_se = np.append(beta, np.nan), np.append(beta_se, np.nan)
-                    if reps is not None:
-                        reps = np.concatenate([reps, np.full((3, reps.shape[1], 1), np.nan)], axis=2)
-                    if evidence is not None:
-                        evidence[int(f0.size - 1)] = (gain, penalty)
-                    g, band, w, x, scale, ug, blocks, fits, fit = \
-                        g_c, band_c, w_c, x_c, scale_c, ug_c, blocks_c, fits_c, fit_c
-                    f, z, u, fun, px, mod = fit
-                else:
-                    f0, z0, u0 = f0[:-1], z0[:-1], u0[:, :-1]
-                    hw, lo, hi = hw[:-1], lo[:-1], hi[:-1]
-        # the chosen fit carried on to its optimum (:func:`oma.output_only._ml_fit._finish`), where
-        # that keeps it a refinement of the same modes: within their bands, and each frequency
-        # within half a half-power width (the start's or the fit's, the narrower) of the scoring's
-        # end (on a real Hurco file a finish took a 1870-unit gain by moving a 2 % mode 3.6 Hz)
-        pf, fun_f, _ = _finish(px, mod, x)
-        if pf is not px:
-            finished = tuple(_unpack(pf, mod)[:3]) + (fun_f, pf, mod)
-            if _within_bands(finished, g, f0, hw) and \
-                    np.all(np.abs(finished[0] - f) <= 0.5 * np.minimum(z0[g] * f0[g], z * f)):
-                fit = finished
-                f, z, u, fun, px, mod = fit
-        if not _within_bands(fit, g, f0, hw):
-            continue
-        f_out[g], z_out[g] = f, z
-        ok[g] = True
+        found = _missing_mode(bins.w, bins.x, px, mod, band, within=band_hz)
+        if found is None or not found[0] > 1.0 + add_missing / np.sqrt(found[1]):
+            return g, band, bins, chain
+        _, _, fc, zc, uc = found
+        uc = uc * bins.scale
+        self.f0, self.z0 = np.append(self.f0, fc), np.append(self.z0, zc)
+        self.u0 = np.column_stack([self.u0, uc / np.linalg.norm(uc)])
+        self.hw = np.append(self.hw, 0.0)
+        g_c = np.append(g, self.f0.size - 1)
+        for _attempt in range(2):
+            self.hw[-1] = max(self.half_width * self.z0[-1] * self.f0[-1], self.min_half_width_hz)
+            band_c = (min(band[0], self.f0[-1] - self.hw[-1]), max(band[1], self.f0[-1] + self.hw[-1]))
+            bins_c, ug_c = self.bins(g_c, band_c)
+            # the known tails in the group's own band's channel scale, not the widened band's
+            chain_c = self.chain(g_c, bins_c, ug_c, tail_scale=bins.scale)
+            if chain_c is not None and not band_c[0] <= chain_c[1][0][-1] <= band_c[1]:
+                chain_c = None   # the fit took it out of the band: not a mode of this band
+            if chain_c is None or abs(chain_c[1][0][-1] - self.f0[-1]) <= self.hw[-1] / 2:
+                break
+            self.f0[-1], self.z0[-1] = chain_c[1][0][-1], float(np.clip(chain_c[1][1][-1], 0.005, 0.2))
+        gain = penalty = None
+        if chain_c is not None:
+            fits_c, fit_c = chain_c
+            penalty = _mode_penalty(fit_c[5])
+            gain = _mode_gain(fits_c, fit_c, g_c.size - 1, bins_c.x, penalty=penalty)
+        apart = chain_c is not None and _new_mode_apart(fit_c, g_c, self.f0, self.z0, self.lines)
+        if gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, self.f0, self.hw):
+            self._add(gid)
+            if evidence is not None:
+                evidence[int(self.f0.size - 1)] = (gain, penalty)
+            return g_c, band_c, bins_c, chain_c
+        self.f0, self.z0, self.u0, self.hw = self.f0[:-1], self.z0[:-1], self.u0[:, :-1], self.hw[:-1]
+        return g, band, bins, chain
+
+    def _add(self, gid):
+        """The results grown by the candidate the scan added to the group ``gid`` (the last start)."""
+        self.f_out, self.z_out = np.append(self.f_out, self.f0[-1]), np.append(self.z_out, self.z0[-1])
+        self.u_out = np.column_stack([self.u_out, self.u0[:, -1]])
+        self.ok, self.dropped = np.append(self.ok, False), np.append(self.dropped, False)
+        self.added, self.duplicated = np.append(self.added, True), np.append(self.duplicated, False)
+        self.group, self.left_band = np.append(self.group, gid), np.append(self.left_band, False)
+        self.se = np.column_stack([self.se, np.full(4, np.nan)])
+        self.level = np.append(self.level, np.nan)
+        self.beta, self.beta_se = np.append(self.beta, np.nan), np.append(self.beta_se, np.nan)
+        if self.reps is not None:
+            self.reps = np.concatenate([self.reps, np.full((3, self.reps.shape[1], 1), np.nan)], axis=2)
+
+    def finished(self, fit, g, bins: _Bins):
+        """The chosen fit carried on to its optimum (:func:`oma.output_only._ml_fit._finish`), where
+        that keeps it a refinement of the same modes: within their bands, and each frequency within
+        half a half-power width (the start's or the fit's, the narrower) of the scoring's end (on a
+        real Hurco file a finish took a 1870-unit gain by moving a 2 % mode 3.6 Hz); else ``fit``."""
+        f, z, u, fun, px, mod = fit
+        pf, fun_f, _ = _finish(px, mod, bins.x)
+        if pf is px:
+            return fit
+        finished = tuple(_unpack(pf, mod)[:3]) + (fun_f, pf, mod)
+        f0, z0 = self.f0[g], self.z0[g]
+        if _within_bands(finished, g, self.f0, self.hw) and np.all(np.abs(finished[0] - f) <= 0.5 * np.minimum(z0 * f0, z * f)):
+            return finished
+        return fit
+
+    def store(self, g, fit, band, bins: _Bins, slopes: bool):
+        """The group's results: values, directions in the records' channels, standard errors from
+        the information, input level (and slope), and the replicates' refits."""
+        f, z, u, fun, px, mod = fit
+        scale = bins.scale
+        self.f_out[g], self.z_out[g] = f, z
+        self.ok[g] = True
         for j, k in enumerate(g):
             uk = u[j] * scale / np.linalg.norm(u[j] * scale)
-            u_out[:, k] = uk if uk @ u0[:, k] >= 0 else -uk
-        se[:, g] = _information_se(px, mod, x, u, dscale * scale, derivative)
-        level[g] = _input_level(px, mod, derivative, dscale * scale)[0]
-        if slopes is not None and mod.slope:
-            beta[g], beta_se[g] = _input_slope(px, mod, x)
-        if gapped:
-            # the information is the expected one (it depends on the parameters, not the data):
-            # every replicate starts from the full-record optimum, so from the same matrix
-            jm = _fisher(px, mod)
-            for s_i, sp in enumerate(gapped):
-                xj = _band_bins(sp, *band, lines, line_guard_hz)[1] / scale
-                xj = xj if blocks is None else pool(blocks, xj)
-                pj, vj = _scoring(px, mod, xj, max_iter=JACKKNIFE_ITER, warm=0, jm=jm)
-                if not vj < 1e30:
-                    continue
-                fj, zj, uj = _unpack(pj, mod)[:3]
-                if np.all(np.isfinite(pj)):
-                    reps[0, s_i, g], reps[1, s_i, g] = fj, zj
-                    ua, ub = uj * (dscale * scale)[None, :], u * (dscale * scale)[None, :]
-                    cosine = np.abs(np.sum(ua * ub, axis=1)) / (np.linalg.norm(ua, axis=1) * np.linalg.norm(ub, axis=1))
-                    reps[2, s_i, g] = np.arccos(np.minimum(cosine, 1.0))
-    if evidence is not None:
-        evidence["dropped"] = dropped
-        evidence["duplicate"] = duplicated
-        evidence["left_band"] = left_band
-        evidence["added"] = added
-    if slopes is not None:
-        slopes.update(beta=beta, beta_se=beta_se)
-    return RefinedModes(f_out, z_out, u_out, ok, reps, se, level, group)
+            self.u_out[:, k] = uk if uk @ self.u0[:, k] >= 0 else -uk
+        self.se[:, g] = _information_se(px, mod, bins.x, u, self.dscale * scale, self.derivative)
+        self.level[g] = _input_level(px, mod, self.derivative, self.dscale * scale)[0]
+        if slopes and mod.slope:
+            self.beta[g], self.beta_se[g] = _input_slope(px, mod, bins.x)
+        if not self.gapped:
+            return
+        # the information is the expected one (it depends on the parameters, not the data): every
+        # replicate starts from the full-record optimum, so from the same matrix
+        jm = _fisher(px, mod)
+        ds = (self.dscale * scale)[None, :]
+        for s_i, sp in enumerate(self.gapped):
+            xj = _band_bins(sp, *band, self.lines, self.line_guard_hz)[1] / scale
+            xj = xj if bins.blocks is None else pool(bins.blocks, xj)
+            pj, vj = _scoring(px, mod, xj, max_iter=JACKKNIFE_ITER, warm=0, jm=jm)
+            if not vj < 1e30:
+                continue
+            fj, zj, uj = _unpack(pj, mod)[:3]
+            if np.all(np.isfinite(pj)):
+                self.reps[0, s_i, g], self.reps[1, s_i, g] = fj, zj
+                ua, ub = uj * ds, u * ds
+                cosine = np.abs(np.sum(ua * ub, axis=1)) / (np.linalg.norm(ua, axis=1) * np.linalg.norm(ub, axis=1))
+                self.reps[2, s_i, g] = np.arccos(np.minimum(cosine, 1.0))

@@ -27,8 +27,7 @@ from .._arrays import readonly as _ro
 from .._linalg import single_threaded_blas
 from ..signals import integrate_frequency_domain
 from .coverage import SEGMENT_S, unexplained_peaks
-from .harmonics import (HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE, ResponseHarmonics, at_milling_line,
-                        remove_response_harmonics)
+from .harmonics import HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE, at_milling_line, remove_response_harmonics
 from .ml import LEFT_DAMPING, band_groups, refine_modes_ml
 from .ssi import StabilisedModes, mac, match_modes, same_mode, segment_correlations, select_modes, ssi_poles
 from .uncertainty import jackknife, segment_bounds, t_interval
