@@ -535,8 +535,7 @@ class _Refinement:
             self.hw[-1] = max(self.half_width * self.z0[-1] * self.f0[-1], self.min_half_width_hz)
             band_c = (min(band[0], self.f0[-1] - self.hw[-1]), max(band[1], self.f0[-1] + self.hw[-1]))
             bins_c, ug_c = self.bins(g_c, band_c)
-            # the known tails in the group's own band's channel scale, not the widened band's
-            chain_c = self.chain(g_c, bins_c, ug_c, tail_scale=bins.scale)
+            chain_c = self.chain(g_c, bins_c, ug_c)
             if chain_c is not None and not band_c[0] <= chain_c[1][0][-1] <= band_c[1]:
                 chain_c = None   # the fit took it out of the band: not a mode of this band
             if chain_c is None or abs(chain_c[1][0][-1] - self.f0[-1]) <= self.hw[-1] / 2:
