@@ -303,53 +303,10 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     if prior.n_modes > 1 and mode_correlation < 1.0:
         spread = np.sqrt(1.0 - mode_correlation) * sd[:3]
         sd = np.r_[np.sqrt(mode_correlation) * sd[:3], sd[3:]]
-    active = np.flatnonzero(sd > 0)
-    log_a = np.log(cuts.axial_depth_m)
-    labelled = cuts.outcome >= 0
-    # the models of the mislabel rate sampled (one, or fixed and learned to be averaged); the
-    # sampler's coordinates: the free log-multipliers, then a learned rate's log-odds shift
-    models = likelihood.components()
-
-    def x_sd(lk):
-        return np.r_[sd[active], lk.mislabel_sd] if lk.learns_mislabel else sd[active]
-
-    def full(x):
-        u = np.zeros((x.shape[0], 5))
-        u[:, active] = x[:, :active.size]
-        return u
-
-    def rate(x, lk):
-        return lk.mislabel_rate(x[:, -1]) if lk.learns_mislabel else np.full(x.shape[0], lk.mislabel)
-
-    def terms(x, table, lk, model_error=None):
-        u = full(x)
-        lb = table.log_limit(u[:, 0], u[:, 1], u[:, 2], u[:, 3], u[:, 4])
-        return lk.log_terms(log_a[None, :] - lb, cuts.outcome, np.where(labelled, cuts.weight, 0.0),
-                            model_error=model_error, mislabel=rate(x, lk)[:, None], detected=cuts.detected), lb
-
-    def inside(table):
-        """The table's range, where the posterior is kept: outside it the table clips to its edge,
-        and a posterior the cuts pin near an edge used to drift out towards the prior's centre
-        through the flat, clipped likelihood (a designed-cuts benchmark seed: the final samples
-        outside the fine table in frequency and damping, its check then off by a median 50 %)."""
-        return lambda x: table.contains(full(x)[:, 0], full(x)[:, 2], full(x)[:, 3], full(x)[:, 4])
-
-    def log_likelihood(table, lk, model_error=None):
-        keep = inside(table)
-        return lambda x: np.where(keep(x), terms(x, table, lk, model_error)[0].sum(axis=1), -np.inf)
-
     rng = np.random.default_rng(seed)
-
-    def sample(table, model_error=None):
-        """One SMC run per model of the rate (the same table and support)."""
-        label = "learn: posterior" + (" (table error)" if model_error is not None else "")
-        return [smc(log_likelihood(table, lk, model_error), x_sd(lk), rng=rng, n_particles=n_particles,
-                    support=inside(table), desc=label + (f" {k + 1}/{len(models)}" if len(models) > 1 else ""))
-                for k, lk in enumerate(models)]
-
-    def pooled(runs):
-        return np.concatenate([full(r.samples) for r in runs])
-
+    # the models of the mislabel rate sampled (one, or fixed and learned to be averaged)
+    models = likelihood.components()
+    sampler = _Sampler(cuts, sd, models, rng, n_particles)
     stages = []
     coarse = None
     if table is None:
@@ -358,49 +315,30 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         # the fine table covers only where it lies, with a margin of 2 sds beyond its extreme
         # samples (notes/learn.md: why, and what it costs)
         coarse = table_for(prior, setup, cuts, grid_for(sd, coarse=True), method=method, desc="learn: coarse table")
-        res0 = smc(log_likelihood(coarse, models[-1]), x_sd(models[-1]), rng=rng,
-                   n_particles=max(500, n_particles // 2), support=inside(coarse), desc="learn: coarse posterior")
-        u0 = full(res0.samples)
+        res0 = smc(sampler.log_likelihood(coarse, models[-1]), sampler.x_sd(models[-1]), rng=rng,
+                   n_particles=max(500, n_particles // 2), support=sampler.inside(coarse),
+                   desc="learn: coarse posterior")
+        u0 = sampler.full(res0.samples)
         stages.append(time.perf_counter() - t0)
-        table = table_for(prior, setup, cuts, Grid.covering(u0[:, 0], u0[:, 2], u0[:, 4] - u0[:, 3],
-                                                            bounds=grid_for(sd), max_zeta=FINE_NODES[0],
-                                                            max_ratio=FINE_NODES[1]),
-                          method=method, desc="learn: table")
+        table = _fine_table(prior, setup, cuts, u0, sd, method, "learn: table")
     t1 = time.perf_counter()
-    runs = sample(table)
-    if coarse is not None and _at_edge(pooled(runs), table, grid_for(sd), sd):
+    runs = sampler.sample(table)
+    if coarse is not None and _at_edge(sampler.pooled(runs), table, grid_for(sd), sd):
         # the fine posterior presses against its table's box where the prior's range goes on (the
         # coarse stage placed the box too tightly): once, a table over both stages' samples
-        u1 = np.concatenate([u0, pooled(runs)])
-        table = table_for(prior, setup, cuts, Grid.covering(u1[:, 0], u1[:, 2], u1[:, 4] - u1[:, 3],
-                                                            bounds=grid_for(sd), max_zeta=FINE_NODES[0],
-                                                            max_ratio=FINE_NODES[1]),
-                          method=method, desc="learn: wider table")
+        table = _fine_table(prior, setup, cuts, np.concatenate([u0, sampler.pooled(runs)]), sd, method,
+                            "learn: wider table")
         stages.append(time.perf_counter() - t1)
-        runs = sample(table)
+        runs = sampler.sample(table)
     t2 = time.perf_counter()
     model_error = np.zeros(cuts.n_cuts)
     spread_error = np.zeros(0)
-    if validate > 0 and (active.size or spread.any()):
+    if validate > 0 and (sampler.active.size or spread.any()):
         # the table against direct limits where the posterior lies; its error widens each cut's
         # boundary, and the posterior is sampled again
-        u_all = pooled(runs)
-        u_v = u_all[rng.choice(u_all.shape[0], min(int(validate), u_all.shape[0]), replace=False)]
-        args = (setup.tool, setup.cut, coef, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down)
-        direct = direct_log_limits(prior, *args, u_v, method=method, sdm_steps=table.grid.sdm_steps,
-                                   desc="learn: table check")
-        model_error = np.sqrt(np.mean((table.log_limit(*u_v.T) - direct) ** 2, axis=0))
-        if spread.any():
-            # the modes' own deviations integrated out: the same samples with the modes moved apart
-            # by draws of them (the marginal likelihood of a cut, to first order a boundary widened
-            # by the spread they give its log limit)
-            dev = rng.standard_normal((u_v.shape[0], 3, prior.n_modes)) * spread[None, :, None]
-            apart = np.array([direct_log_limits(scaled_model(prior, log_f=d[0], log_k=d[1], log_zeta=d[2]), *args,
-                                                u[None, :], method=method, sdm_steps=table.grid.sdm_steps)[0]
-                              for d, u in zip(dev, u_v)])
-            spread_error = np.sqrt(np.mean((apart - direct) ** 2, axis=0))
-            model_error = np.hypot(model_error, spread_error)
-        runs = sample(table, model_error)
+        model_error, spread_error = _table_error(prior, setup, cuts, table, sampler.pooled(runs), rng, validate,
+                                                 spread, method)
+        runs = sampler.sample(table, model_error)
     t3 = time.perf_counter()
     likelihood = replace(likelihood, model_error=float(np.sqrt(np.mean(model_error**2))))
     # each model's posterior, then their mixture in proportion to the evidence (equal prior odds)
@@ -408,10 +346,10 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     model_weight = softmax(log_z)
     parts = []
     for lk, r in zip(models, runs):
-        tt_k, lb_k = terms(r.samples, table, lk, model_error)
+        tt_k, lb_k = sampler.terms(r.samples, table, lk, model_error)
         # the MAP is over the physical parameters: the rate's own prior term is left out
-        log_prior = -0.5 * np.sum((r.samples[:, :active.size] / sd[active]) ** 2, axis=1)
-        parts.append((full(r.samples), rate(r.samples, lk), tt_k, lb_k, tt_k.sum(axis=1) + log_prior))
+        log_prior = -0.5 * np.sum((r.samples[:, :sampler.active.size] / sd[sampler.active]) ** 2, axis=1)
+        parts.append((sampler.full(r.samples), sampler.rate(r.samples, lk), tt_k, lb_k, tt_k.sum(axis=1) + log_prior))
     components = tuple(Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u_k,
                                  log_posterior=lp_k, likelihood=replace(lk, model_error=likelihood.model_error),
                                  method=method, mislabel_samples=eps_k, mode_spread=spread)
@@ -421,6 +359,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     pick = [np.arange(counts[0])] if len(parts) == 1 else \
         [rng.choice(p[0].shape[0], c, replace=False) for p, c in zip(parts, counts)]
     u, eps, tt, lb, lp = (np.concatenate([p[i][k] for p, k in zip(parts, pick)]) for i in range(5))
+    log_a = sampler.log_a
     p_each = 1.0 - likelihood.p_chatter(log_a[None, :] - lb, model_error=model_error)
     post = Posterior(reference=prior, coefficients=coef, prior_log_sd=sd, samples=u, log_posterior=lp,
                      likelihood=likelihood, method=method, mislabel_samples=eps, mode_spread=spread)
@@ -429,41 +368,156 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
                                                                    model_error=model_error), eps, cuts)
     # the prior's own prediction: fresh prior samples (no data used, so no cross-validation needed),
     # through the table that spans the prior (the coarse one; the fine one covers the posterior only)
+    active = sampler.active
     u0 = np.zeros((n_particles, 5))
     u0[:, active] = np.random.default_rng(seed + 1).standard_normal((n_particles, active.size)) * sd[active]
     prior_table = coarse if coarse is not None else table
     p_prior = np.mean(1.0 - likelihood.p_chatter(log_a[None, :] - prior_table.log_limit(*u0.T),
                                                  model_error=model_error), axis=0)
     p_loo = loo_probability_stable(tt, p_each)
-    warnings = []
     by_mode = np.zeros((0, 0))
-    # several modes and something about them learned or integrated out: one factor per group is a restriction
-    restricted = prior.n_modes > 1 and (np.any(sd[:3] > 0) or spread.any())
     if prior.n_modes > 1:
         # which mode each cut's outcome is evidence about, at the MAP (shares of d log b / d log k)
         map_model, map_coef = post.map_model()
         by_mode = mode_shares(map_model, setup.tool, setup.cut, map_coef, cuts.spindle_rpm, cuts.radial_depth_m,
-                            cuts.down, method=method, sdm_steps=table.grid.sdm_steps)
-    if restricted:
-        told = ""
-        if np.isfinite(by_mode).any():
-            med = np.nanmedian(by_mode, axis=0)
-            told = (" The cuts' limits depend on the modes' stiffness in the shares (median over the cuts, "
-                    "d log limit / d log k) " + ", ".join(f"mode {r}: {x:.2f}" for r, x in enumerate(med))
-                    + ": the factors learned describe the modes with the large shares; the others move with "
-                    "them untested.")
-        if spread.any():
-            warnings.append(f"the prior has {prior.n_modes} modes: one factor per group (frequency, stiffness, "
-                            "damping) is learned for all of them, and each mode's own deviation from it (correlation "
-                            f"{mode_correlation:g}) is not learned but integrated out: it widens every cut's boundary "
-                            "and each mode's posterior sd (a posterior per mode is not implemented)." + told)
-        else:
-            warnings.append(f"the prior has {prior.n_modes} modes and one factor per group (frequency, stiffness, "
-                            "damping) moves them all together: modes that are off in different directions cannot be "
-                            "told apart (a posterior per mode is not implemented; --mode-correlation below 1 "
-                            "integrates their own deviations out)." + told)
-    for name in post.unpinned():
-        warnings.append(f"the cuts do not pin down {name}: its posterior sd is still above 80 % of the prior's")
+                              cuts.down, method=method, sdm_steps=table.grid.sdm_steps)
+    # several modes and something about them learned or integrated out: one factor per group is a restriction
+    restricted = prior.n_modes > 1 and (np.any(sd[:3] > 0) or spread.any())
+    warnings = _mode_warnings(prior, spread, mode_correlation, by_mode) if restricted else []
+    warnings += _posterior_warnings(post, cuts, runs, table, sd)
+    acc_b, acc_a = _accuracy(p_prior, cuts), _accuracy(p_loo, cuts)
+    scores = _paired_log_score(p_loo, p_prior, cuts, likelihood.mislabel)
+    warnings += _fit_warnings(cuts, likelihood, (acc_b, acc_a), scores, restricted, eps, p_wrong, model_error)
+    score_post, score_prior, _ = scores
+    timings = {"coarse_stage": stages[0] if stages else 0.0, "tables": t1 - t0, "sampling": t2 - t1,
+               "validation": t3 - t2, "total": time.perf_counter() - t0}
+    return LearnResult(posterior=post, table=table, accuracy_before=acc_b, accuracy_after=acc_a,
+                       prior_probability_stable=p_prior, loo_probability_stable=p_loo,
+                       warnings=tuple(warnings), timings_s=timings,
+                       log_evidence=float(logsumexp(log_z) - np.log(log_z.size)),
+                       model_error=model_error, mislabel_probability=p_wrong,
+                       components=components if len(components) > 1 else (),
+                       model_probability=tuple(float(w) for w in model_weight) if len(components) > 1 else (),
+                       mode_share=by_mode, mode_spread_error=spread_error, mode_correlation=float(mode_correlation),
+                       log_score_before=score_prior, log_score_after=score_post)
+
+
+class _Sampler:
+    """The posterior's sampler over the free log-multipliers (``sd > 0``), then a learned rate of
+    wrong marks' log-odds shift: the cuts' likelihood through a limit table, kept inside the
+    table's range, and one SMC run per model of the rate."""
+
+    def __init__(self, cuts: CutTable, sd, models, rng, n_particles: int):
+        self.cuts, self.sd, self.models, self.rng, self.n_particles = cuts, sd, models, rng, n_particles
+        self.active = np.flatnonzero(sd > 0)
+        self.log_a = np.log(cuts.axial_depth_m)
+        self.labelled = cuts.outcome >= 0
+
+    def x_sd(self, lk) -> np.ndarray:
+        """The sampler's prior sds: the free multipliers', then a learned rate's."""
+        return np.r_[self.sd[self.active], lk.mislabel_sd] if lk.learns_mislabel else self.sd[self.active]
+
+    def full(self, x) -> np.ndarray:
+        """Samples as the five log-multipliers (zero where not free), (n, 5)."""
+        u = np.zeros((x.shape[0], 5))
+        u[:, self.active] = x[:, :self.active.size]
+        return u
+
+    def rate(self, x, lk) -> np.ndarray:
+        """Each sample's share of wrong marks."""
+        return lk.mislabel_rate(x[:, -1]) if lk.learns_mislabel else np.full(x.shape[0], lk.mislabel)
+
+    def terms(self, x, table: LimitTable, lk, model_error=None):
+        """Each sample's log-likelihood term per cut (n, n_cuts), and its log limits."""
+        cuts = self.cuts
+        u = self.full(x)
+        lb = table.log_limit(u[:, 0], u[:, 1], u[:, 2], u[:, 3], u[:, 4])
+        return lk.log_terms(self.log_a[None, :] - lb, cuts.outcome, np.where(self.labelled, cuts.weight, 0.0),
+                            model_error=model_error, mislabel=self.rate(x, lk)[:, None], detected=cuts.detected), lb
+
+    def inside(self, table: LimitTable):
+        """The table's range, where the posterior is kept: outside it the table clips to its edge,
+        and a posterior the cuts pin near an edge used to drift out towards the prior's centre
+        through the flat, clipped likelihood (a designed-cuts benchmark seed: the final samples
+        outside the fine table in frequency and damping, its check then off by a median 50 %)."""
+        def keep(x):
+            u = self.full(x)
+            return table.contains(u[:, 0], u[:, 2], u[:, 3], u[:, 4])
+        return keep
+
+    def log_likelihood(self, table: LimitTable, lk, model_error=None):
+        keep = self.inside(table)
+        return lambda x: np.where(keep(x), self.terms(x, table, lk, model_error)[0].sum(axis=1), -np.inf)
+
+    def sample(self, table: LimitTable, model_error=None) -> list:
+        """One SMC run per model of the rate (the same table and support)."""
+        label = "learn: posterior" + (" (table error)" if model_error is not None else "")
+        n = len(self.models)
+        return [smc(self.log_likelihood(table, lk, model_error), self.x_sd(lk), rng=self.rng,
+                    n_particles=self.n_particles, support=self.inside(table),
+                    desc=label + (f" {k + 1}/{n}" if n > 1 else ""))
+                for k, lk in enumerate(self.models)]
+
+    def pooled(self, runs) -> np.ndarray:
+        return np.concatenate([self.full(r.samples) for r in runs])
+
+
+def _fine_table(prior, setup, cuts: CutTable, u, sd, method: str, desc: str) -> LimitTable:
+    """The fine table over where the samples ``u`` (n, 5) lie, within the prior's range."""
+    grid = Grid.covering(u[:, 0], u[:, 2], u[:, 4] - u[:, 3], bounds=grid_for(sd), max_zeta=FINE_NODES[0],
+                         max_ratio=FINE_NODES[1])
+    return table_for(prior, setup, cuts, grid, method=method, desc=desc)
+
+
+def _table_error(prior, setup, cuts: CutTable, table: LimitTable, u_all, rng, validate: int, spread, method: str):
+    """Each cut's RMS log error of the table against direct limits at ``validate`` of the samples
+    ``u_all``, and (several modes, ``spread``) the RMS change of the log limit when the modes are
+    moved apart by draws of their own deviations (the marginal likelihood of a cut, to first order
+    a boundary widened by the spread they give its log limit), combined into the first."""
+    coef = setup.material.cutting_coefficients
+    u_v = u_all[rng.choice(u_all.shape[0], min(int(validate), u_all.shape[0]), replace=False)]
+    args = (setup.tool, setup.cut, coef, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down)
+    direct = direct_log_limits(prior, *args, u_v, method=method, sdm_steps=table.grid.sdm_steps,
+                               desc="learn: table check")
+    model_error = np.sqrt(np.mean((table.log_limit(*u_v.T) - direct) ** 2, axis=0))
+    spread_error = np.zeros(0)
+    if spread.any():
+        dev = rng.standard_normal((u_v.shape[0], 3, prior.n_modes)) * spread[None, :, None]
+        apart = np.array([direct_log_limits(scaled_model(prior, log_f=d[0], log_k=d[1], log_zeta=d[2]), *args,
+                                            u[None, :], method=method, sdm_steps=table.grid.sdm_steps)[0]
+                          for d, u in zip(dev, u_v)])
+        spread_error = np.sqrt(np.mean((apart - direct) ** 2, axis=0))
+        model_error = np.hypot(model_error, spread_error)
+    return model_error, spread_error
+
+
+def _mode_warnings(prior: ModalModel, spread, mode_correlation: float, by_mode) -> list[str]:
+    """Several modes and something about them learned or integrated out: one factor per group (and
+    which modes the cuts inform) is a restriction the user must know of."""
+    told = ""
+    if np.isfinite(by_mode).any():
+        med = np.nanmedian(by_mode, axis=0)
+        told = (" The cuts' limits depend on the modes' stiffness in the shares (median over the cuts, "
+                "d log limit / d log k) " + ", ".join(f"mode {r}: {x:.2f}" for r, x in enumerate(med))
+                + ": the factors learned describe the modes with the large shares; the others move with "
+                "them untested.")
+    if spread.any():
+        return [f"the prior has {prior.n_modes} modes: one factor per group (frequency, stiffness, "
+                "damping) is learned for all of them, and each mode's own deviation from it (correlation "
+                f"{mode_correlation:g}) is not learned but integrated out: it widens every cut's boundary "
+                "and each mode's posterior sd (a posterior per mode is not implemented)." + told]
+    return [f"the prior has {prior.n_modes} modes and one factor per group (frequency, stiffness, "
+            "damping) moves them all together: modes that are off in different directions cannot be "
+            "told apart (a posterior per mode is not implemented; --mode-correlation below 1 "
+            "integrates their own deviations out)." + told]
+
+
+def _posterior_warnings(post: Posterior, cuts: CutTable, runs, table: LimitTable, sd) -> list[str]:
+    """What the posterior did not learn: parameters the cuts do not pin down (or only in a ratio),
+    marks all on one side of the limit, a sampler that under-explored, a posterior at the edge of
+    the forward model's range."""
+    warnings = [f"the cuts do not pin down {name}: its posterior sd is still above 80 % of the prior's"
+                for name in post.unpinned()]
     # marks all on one side of the limit bound it from that side only: where it lies beyond them is
     # the prior's and the share of wrong marks' (session 23: 12 cuts of the example all marked
     # stable doubled the damping's posterior mean, with no word of why)
@@ -477,6 +531,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
     acc_min = min((min(r.acceptance) for r in runs if r.acceptance), default=1.0)
     if acc_min < 0.02:
         warnings.append(f"the sampler's acceptance fell to {acc_min:.3f}: the posterior may be under-explored")
+    u = post.samples
     if {"stiffness", "Ktc"} <= set(post.unpinned()) and sd[1] > 0 and sd[3] > 0:
         ratio_sd = float(np.std(u[:, 1] - u[:, 3]) / np.hypot(sd[1], sd[3]))
         if ratio_sd < 0.8:
@@ -486,13 +541,22 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         if share > EDGE_SHARE:
             warnings.append(f"the {name} posterior piles up at the edge of the forward model's range ({share:.0%} of "
                             "the samples): the prior may be too narrow, or the cuts contradict it; widen --prior-sd")
-    acc_b, acc_a = _accuracy(p_prior, cuts), _accuracy(p_loo, cuts)
+    return warnings
+
+
+def _fit_warnings(cuts: CutTable, likelihood: Likelihood, accuracies, scores, restricted: bool, eps, p_wrong,
+                  model_error) -> list[str]:
+    """How well the posterior explains the marks: worse than the prior, a low accuracy, noisy marks
+    or more wrong marks than the fixed share explains, the suspect marks, the detection's lag, and
+    tables far off where the posterior lies."""
+    acc_b, acc_a = accuracies
+    score_post, score_prior, score_t = scores
+    warnings = []
     # worse than the prior: the cross-validated log score of the marks lower than the prior's by more
     # than twice its paired standard error (not a count of cuts that changed side: on a shop's stepped
     # design, 4 speeds with the depth raised until chatter, leave-one-out takes away the only chatter
     # mark at its speed, the mark then sits at the remaining cuts' boundary and two of them changed side
     # while the posterior's probabilities scored better than the prior's; docs/learn.md, session 16)
-    score_post, score_prior, score_t = _paired_log_score(p_loo, p_prior, cuts, likelihood.mislabel)
     if np.isfinite(score_t) and score_t < -WORSE_THAN_PRIOR_T:
         why = ("its modes are off from the prior in different directions (one factor per group moves them all), "
                if restricted else "")
@@ -524,7 +588,7 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         warnings.append(f"{suspects.size} mark(s) look wrong (probability > {SUSPECT_LABEL:g}), rows "
                         + ", ".join(str(int(i)) for i in suspects[:10]) + (" ..." if suspects.size > 10 else "")
                         + ": check them (suspect_labels)" + _low_speed_stable_hint(cuts, suspects))
-    n_detected = int(np.sum(cuts.detected & labelled))
+    n_detected = int(np.sum(cuts.detected & (cuts.outcome >= 0)))
     if n_detected and likelihood.detection_lag > 0:
         warnings.append(f"{n_detected} outcome(s) detected from records are read with the detection's lag: half of "
                         f"the chattering cuts read as chatter at {np.exp(likelihood.detection_lag):.2f}x the limit, "
@@ -535,14 +599,5 @@ def learn(setup, prior: ModalModel, cuts: CutTable, *, prior_sd: PriorSD = Prior
         warnings.append(f"the limit tables are off by more than {3 * likelihood.boundary_scale:.0%} at "
                         f"{int(big.sum())} of {cuts.n_cuts} cuts where the posterior lies (median "
                         f"{np.median(model_error):.0%}): those cuts count as weaker evidence")
-    timings = {"coarse_stage": stages[0] if stages else 0.0, "tables": t1 - t0, "sampling": t2 - t1,
-               "validation": t3 - t2, "total": time.perf_counter() - t0}
-    return LearnResult(posterior=post, table=table, accuracy_before=acc_b, accuracy_after=acc_a,
-                       prior_probability_stable=p_prior, loo_probability_stable=p_loo,
-                       warnings=tuple(warnings), timings_s=timings,
-                       log_evidence=float(logsumexp(log_z) - np.log(log_z.size)),
-                       model_error=model_error, mislabel_probability=p_wrong,
-                       components=components if len(components) > 1 else (),
-                       model_probability=tuple(float(w) for w in model_weight) if len(components) > 1 else (),
-                       mode_share=by_mode, mode_spread_error=spread_error, mode_correlation=float(mode_correlation),
-                       log_score_before=score_prior, log_score_after=score_post)
+    return warnings
+
