@@ -142,3 +142,31 @@ def test_a_refinement_on_pooled_bins_ends_where_the_bins_do(monkeypatch):
     # and both near the truth (within 3 of their standard errors)
     ft, zt = np.array([m[0] for m in MODES]), np.array([m[1] for m in MODES])
     assert np.all(np.abs(fp - ft) < 3 * sep[0]) and np.all(np.abs(np.log(zp / zt)) < 3 * sep[1])
+
+
+def test_the_physical_generator_is_the_modal_one_for_proportional_damping_and_complex_otherwise():
+    """``physical_superposition`` (the receptance of ``M x'' + C x' + K x`` solved per bin) gives
+    ``modal_superposition``'s record for a diagonal system of unit masses (the same draws; to
+    rounding), and ``physical_modes`` its frequencies and damping with real modes. A damper
+    between two axes makes the close pair's modes complex; each pole ``s`` it reports is a root of
+    ``det(K + s C + s^2 M) = 0``."""
+    from frequency_domain_records import modal_superposition, physical_modes, physical_superposition
+
+    f = np.array([10.5, 24.8, 10.0])
+    zeta = np.array([0.05, 0.04, 0.05])
+    w = 2 * np.pi * f
+    m, c, k = np.eye(3), np.diag(2 * zeta * w), np.diag(w ** 2)
+    modes = [(f[i], zeta[i], np.eye(3)[i]) for i in range(3)]
+    y_modal = modal_superposition(modes, 1000.0, 4.0, 7)
+    y_phys = physical_superposition(m, c, k, 1000.0, 4.0, 7)
+    assert np.max(np.abs(y_phys - y_modal)) < 1e-12 * np.max(np.abs(y_modal))
+    fr, zr, cx = physical_modes(m, c, k)
+    np.testing.assert_allclose(fr, np.sort(f), rtol=1e-12)
+    np.testing.assert_allclose(zr, zeta[np.argsort(f)], rtol=1e-12)
+    assert np.all(cx < 1e-12)
+    coupled = c + 2.0 * np.array([[1.0, 0, -1], [0, 0, 0], [-1, 0, 1]])
+    fr, zr, cx = physical_modes(m, coupled, k)
+    assert np.all(cx[:2] > 0.1) and cx[2] < 1e-12
+    for fk, zk in zip(fr, zr):
+        s = 2 * np.pi * fk * (-zk + 1j * np.sqrt(1 - zk ** 2))
+        assert abs(np.linalg.det(k + s * coupled + s ** 2 * m)) < 1e-9 * np.linalg.det(k)
