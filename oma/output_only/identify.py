@@ -59,6 +59,19 @@ MAX_MASS_LINE_MISFIT = 1.5
 #: (90 % under 13.4), but for a false 12.5 Hz mode beside the close pair (44, 2 % sensor noise);
 #: on the real Hurco files 30-68 on tones and near-duplicates (e.g. 494.6 / 496.7 Hz, 58 / 68).
 MAX_DIRECTION_SE_DEG = 30.0
+#: A mode drifted during the cut (DOMAIN.md's pose drift) when its frequency refitted on the
+#: records' first and second halves (``OutputOnlyModes.half_freq_hz``) differs by more than this
+#: many standard errors of the difference (taken as twice the full record's: each half has half
+#: the data) and by more than :data:`DRIFT_WIDTHS` half-power half-widths ``zeta f``. Measured
+#: (session 26): on 132 modes of stationary benchmark records the difference's z-scores had an rms
+#: of 0.95 and reached 4.1 (the oblique probe's 12 Hz mode, whose halves identified alone differ
+#: by 3.1 errors); with every frequency drifting by 15 % over the record (``bench_oma_drift.py``)
+#: each record's largest was 6.6-7.4, by 10 % 4.4-4.6.
+DRIFT_Z = 5.0
+#: ... and the halves' frequencies differ by more than this many ``zeta f``: the peak smeared by
+#: more than its width, so that the damping read from it is the drift's (at 15 % drift the flagged
+#: modes' differences were 1.5-1.8 half-widths).
+DRIFT_WIDTHS = 1.0
 AXES = ("X", "Y", "Z")
 
 
@@ -98,6 +111,9 @@ class OutputOnlyIdentification:
     undetermined_directions : tuple of int
         Modes whose direction's standard error exceeds :data:`MAX_DIRECTION_SE_DEG`; any leaves the
         model untrusted.
+    drifting_modes : tuple of int
+        Modes whose frequency moved between the records' halves (:data:`DRIFT_Z`,
+        :data:`DRIFT_WIDTHS`); any leaves the model untrusted.
     directions_source : str
         Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
         ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_directions`, and
@@ -119,6 +135,7 @@ class OutputOnlyIdentification:
     unresolved_modes: tuple = ()
     undetermined_directions: tuple = ()
     directions_source: str = "resonance band"
+    drifting_modes: tuple = ()
 
     @property
     def scaled(self) -> bool:
@@ -164,6 +181,11 @@ class OutputOnlyIdentification:
             {"freq_hz": float(self.modes.freq_hz[k]),
              "direction_standard_error_deg": float(np.degrees(self.modes.direction_se_rad[k]))}
             for k in self.undetermined_directions]
+        out["drifting_modes"] = [
+            {"freq_hz": float(self.modes.freq_hz[k]),
+             "half_record_frequency_hz": [float(v) for v in self.modes.half_freq_hz[k]],
+             "z": float(_drift_z(self.modes)[k])}
+            for k in self.drifting_modes]
         out["warnings"] = list(self.warnings)
         return out
 
@@ -251,7 +273,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                    and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se))
                    and not stiffness.misfit > MAX_LINE_MISFIT and not sc.above and not checks.unsteady
                    and not np.any(modes.damping_ratio < LOW_DAMPING) and not checks.peaks and not checks.unresolved
-                   and not checks.loose.size and not sc.levels_disagree)
+                   and not checks.loose.size and not checks.drifting.size and not sc.levels_disagree)
     if not trusted:
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     model = ModalModel(
@@ -271,7 +293,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                                     lines_scaling=sc.lines_scaling if sc.background is not None else None,
                                     unexplained_peaks=tuple(checks.peaks), unresolved_modes=tuple(checks.unresolved),
                                     undetermined_directions=tuple(int(k) for k in checks.loose),
-                                    directions_source=sc.directions_source)
+                                    directions_source=sc.directions_source,
+                                    drifting_modes=tuple(int(k) for k in checks.drifting))
 
 
 def _motion_signals(records, fs, warnings):
@@ -349,6 +372,7 @@ class _Checks(NamedTuple):
     peaks: list             # residual peaks no mode explains
     unresolved: list        # modes whose band holds a second shape
     loose: np.ndarray       # indices of modes whose direction the record does not pin
+    drifting: np.ndarray    # indices of modes whose frequency moved between the records' halves
     residuals: list
     lines: np.ndarray
 
@@ -356,7 +380,7 @@ class _Checks(NamedTuple):
 def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _Checks:
     """The checks of the modes that decide trust, each with its warning: unsteady milling lines,
     tones, residual peaks no mode explains, modes that hold two, directions the record does not
-    pin."""
+    pin, modes that drifted during the cut."""
     unsteady = [h for h in modes.harmonics if not h.steady]
     for r, h in zip(records, modes.harmonics):
         st = h.steadiness
@@ -399,7 +423,30 @@ def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _
                         f"{np.degrees(modes.direction_se_rad[k]):.0f} degrees (standard error, more than "
                         f"{MAX_DIRECTION_SE_DEG:.0f}): the record does not pin it (a spurious mode, one mode taken "
                         "for two, or a tone); the model is not trusted")
-    return _Checks(unsteady, peaks, unresolved, loose, residuals, lines)
+    # a mode whose frequency moved between the records' halves: the modes drifted during the cut
+    # (DOMAIN.md's pose drift; session 26: with every frequency drifting by 15 % over a 20 s
+    # record, damping came out 9-33 % high in the median, frequencies up to 4.9 % off and 2 of 18
+    # modes were lost, with no word of why)
+    z = _drift_z(modes)
+    with np.errstate(invalid="ignore"):
+        moved = np.abs(np.diff(modes.half_freq_hz, axis=1)[:, 0])
+        drifting = np.flatnonzero((np.abs(z) > DRIFT_Z) & (moved > DRIFT_WIDTHS * modes.damping_ratio * modes.freq_hz))
+    for k in drifting:
+        f1, f2 = modes.half_freq_hz[k]
+        warnings.append(f"mode at {modes.freq_hz[k]:.2f} Hz: {f1:.2f} Hz in the first half of the record and "
+                        f"{f2:.2f} Hz in the second ({abs(z[k]):.1f} standard errors apart, more than its half-power "
+                        "half-width): the modes drifted during the cut (the arm moving along it?); the values are "
+                        "the record's mean, the damping is widened by the drift and the intervals are too narrow; "
+                        "identify shorter stretches of the cut; the model is not trusted")
+    return _Checks(unsteady, peaks, unresolved, loose, drifting, residuals, lines)
+
+
+def _drift_z(modes: OutputOnlyModes) -> np.ndarray:
+    """Per mode, the difference of its frequency refitted on the records' second and first halves
+    in standard errors of that difference (twice the full record's frequency error), NaN where
+    either is missing."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.diff(modes.half_freq_hz, axis=1)[:, 0] / (2.0 * modes.freq_se_hz)
 
 
 class _Scaled(NamedTuple):

@@ -103,6 +103,10 @@ class OutputOnlyModes:
         standard error of its logarithm (the refinement's information). With a stiffness,
         ``P_r k_r^2`` is the background force's power spectral density along ``u_r``
         (:mod:`oma.output_only.background`).
+    half_freq_hz : ndarray, shape (n_modes, 2)
+        Each refined mode's frequency refitted on the first and on the second half of the records
+        (``drift_check`` of :func:`output_only_modes`; NaN where not refined): a difference beyond
+        their noise says the mode drifted during the cut (:mod:`oma.output_only.identify`).
     """
 
     freq_hz: np.ndarray
@@ -123,14 +127,17 @@ class OutputOnlyModes:
     warnings: tuple = ()
     input_level: np.ndarray | None = None
     input_level_log_se: np.ndarray | None = None
+    half_freq_hz: np.ndarray | None = None
 
     def __post_init__(self):
         for name in ("input_level", "input_level_log_se"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(self.freq_hz.shape, np.nan))
+        if self.half_freq_hz is None:
+            object.__setattr__(self, "half_freq_hz", np.full((self.freq_hz.size, 2), np.nan))
         for name in ("freq_hz", "damping_ratio", "freq_se_hz", "damping_se", "freq_interval_hz",
                      "damping_interval", "directions", "support", "rejected_hz", "direction_se_rad",
-                     "input_level", "input_level_log_se"):
+                     "input_level", "input_level_log_se", "half_freq_hz"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
         object.__setattr__(self, "shapes", _ro(self.shapes, complex))
         object.__setattr__(self, "harmonics", tuple(self.harmonics))
@@ -153,11 +160,12 @@ class OutputOnlyModes:
                 {"natural_frequency_hz": float(f), "damping_ratio": float(z), "direction": [float(v) for v in u],
                  "frequency_interval_hz": [float(v) for v in fi], "damping_interval": [float(v) for v in zi],
                  "frequency_standard_error_hz": float(fs), "damping_standard_error": float(zs),
-                 "direction_standard_error_deg": float(np.degrees(d)), "support": float(s)}
-                for f, z, u, fi, zi, fs, zs, s, d in zip(self.freq_hz, self.damping_ratio, self.directions,
-                                                         self.freq_interval_hz, self.damping_interval,
-                                                         self.freq_se_hz, self.damping_se, self.support,
-                                                         self.direction_se_rad)
+                 "direction_standard_error_deg": float(np.degrees(d)), "support": float(s),
+                 "half_record_frequency_hz": [float(v) for v in h]}
+                for f, z, u, fi, zi, fs, zs, s, d, h in zip(self.freq_hz, self.damping_ratio, self.directions,
+                                                            self.freq_interval_hz, self.damping_interval,
+                                                            self.freq_se_hz, self.damping_se, self.support,
+                                                            self.direction_se_rad, self.half_freq_hz)
             ],
             "interval_level": self.level,
             "band_hz": [float(b) for b in self.band_hz],
@@ -178,7 +186,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                        ml_refine: bool = True, ml_directions: bool = True, derivative: int = 2,
                        ssi_derivatives: tuple | None = (2, 0), ml_options: dict | None = None,
                        ml_evidence: bool = True, uncertainty: str = "information",
-                       seed_peaks: bool = True) -> OutputOnlyModes:
+                       seed_peaks: bool = True, drift_check: bool = True) -> OutputOnlyModes:
     """Modes, with intervals, from one or more response records of one pose.
 
     Parameters
@@ -263,6 +271,10 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         candidates (damping ``SEED_DAMPING``, or the peak's half-power width where narrower;
         direction the spectral matrix's first singular vector
         at the peak) for the refinement and its evidence gate (session 16).
+    drift_check : bool
+        With ``ml_refine``: refit each refined group on the first and on the second half of the
+        records (``OutputOnlyModes.half_freq_hz``), from the full-record optimum by a few scoring
+        steps (session 26: DOMAIN.md's pose drift).
     uncertainty : {'information', 'jackknife'}
         Standard errors of the refined modes: from the information at the optimum (default;
         the larger of the inverse Fisher information and the sandwich), or the delete-one-segment
@@ -288,7 +300,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     if fdd_directions and modes.n:
         modes = replace(modes, shapes=_fdd_shapes(raw, fs, modes.freq_hz, modes.damping, modes.shapes))
     if ml_refine and modes.n:
-        modes = _refined(modes, raw, fs, lines, derivative, n_segments, {"band_hz": (lo, hi), **(ml_options or {})},
+        options = {"band_hz": (lo, hi), "halves": drift_check, **(ml_options or {})}
+        modes = _refined(modes, raw, fs, lines, derivative, n_segments, options,
                          evidence=ml_evidence, directions=ml_directions, uncertainty=uncertainty, warnings=warnings)
     return _reported(modes, axes, lines, (lo, hi), harmonics, rejected, n_seg, level, warnings)
 
@@ -310,6 +323,7 @@ class _Modes:
     from_information: np.ndarray | None = None  # errors from the refinement's information (None: none)
     input_level: np.ndarray | None = None       # the refinement's background level at the mode (None: NaN)
     input_level_se: np.ndarray | None = None    # ... and its log error
+    half_freq: np.ndarray | None = None         # (2, n): refitted on the records' halves (None: NaN)
 
     def __post_init__(self):
         n = self.n
@@ -317,6 +331,8 @@ class _Modes:
                            ("input_level_se", np.nan)):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(n, fill))
+        if self.half_freq is None:
+            object.__setattr__(self, "half_freq", np.full((2, n), np.nan))
 
     @property
     def n(self) -> int:
@@ -331,11 +347,15 @@ class _Modes:
                    nan, nan.copy(), nan.copy(), np.full(n, seeded))
 
     def take(self, idx) -> "_Modes":
-        return _Modes(**{k: v[:, idx] if k == "shapes" else v[idx] for k, v in vars(self).items()})
+        return _Modes(**{k: v[:, idx] if k in _COLUMNS else v[idx] for k, v in vars(self).items()})
 
     def plus(self, other: "_Modes") -> "_Modes":
-        return _Modes(**{k: np.column_stack([v, getattr(other, k)]) if k == "shapes" else
+        return _Modes(**{k: np.column_stack([v, getattr(other, k)]) if k in _COLUMNS else
                          np.append(v, getattr(other, k)) for k, v in vars(self).items()})
+
+
+#: The fields of :class:`_Modes` that hold a column per mode.
+_COLUMNS = ("shapes", "half_freq")
 
 
 def _lines_removed(signals, axes, fs, spindle_rpm, teeth, *, refine, alias_up_to, integrate, highpass_hz):
@@ -505,7 +525,8 @@ def _refined(modes: _Modes, raw, fs, lines, derivative, n_segments, options, *, 
                    damping=np.where(fitted, out.damping, modes.damping), shapes=shapes, freq_se=f_se,
                    damping_se=z_se, direction_se=u_se, refined=fitted, from_information=from_information,
                    input_level=np.where(fitted, out.levels[0], np.nan),
-                   input_level_se=np.where(fitted, out.levels[1], np.nan))
+                   input_level_se=np.where(fitted, out.levels[1], np.nan),
+                   half_freq=None if out.halves is None else np.where(fitted[None, :], out.halves, np.nan))
 
 
 def _reported(modes: _Modes, axes, lines, band, harmonics, rejected, n_seg, level, warnings) -> OutputOnlyModes:
@@ -556,6 +577,7 @@ def _reported(modes: _Modes, axes, lines, band, harmonics, rejected, n_seg, leve
         directions=directions, shapes=full_shapes, support=m.support, harmonics=tuple(harmonics),
         direction_se_rad=m.direction_se, rejected_hz=rejected, band_hz=band, n_segments=n_seg, level=level,
         warnings=tuple(warnings), input_level=m.input_level, input_level_log_se=m.input_level_se,
+        half_freq_hz=m.half_freq.T,
     )
 
 
@@ -617,11 +639,13 @@ class _Refined(NamedTuple):
     se: tuple | None         # standard errors of frequency (Hz), damping (ratio), direction (rad)
     levels: tuple            # the background level at the mode and its log error (NaN where not fitted)
     group: np.ndarray        # index of the fitted group
+    halves: np.ndarray | None = None  # (2, n): the frequency refitted on the records' first and second halves
 
     def take(self, idx) -> "_Refined":
         return _Refined(self.freq_hz[idx], self.damping[idx], self.shapes[:, idx], self.fitted[idx],
                         None if self.se is None else tuple(a[idx] for a in self.se),
-                        tuple(a[idx] for a in self.levels), self.group[idx])
+                        tuple(a[idx] for a in self.levels), self.group[idx],
+                        None if self.halves is None else self.halves[:, idx])
 
 
 def _moved(out: "_Refined", f_ssi, f_se) -> np.ndarray:
@@ -649,7 +673,9 @@ def _merged(out: "_Refined", ev, redo_out: "_Refined", redo_ev, redo):
         tuple(pick(lambda o, i=i: o.se[i]) for i in range(len(out.se)))
     merged = _Refined(pick(lambda o: o.freq_hz), pick(lambda o: o.damping),
                       np.column_stack([o.shapes[:, k] for o, _, k in src]), pick(lambda o: o.fitted), ses,
-                      tuple(pick(lambda o, i=i: o.levels[i]) for i in range(len(out.levels))), pick(lambda o: o.group))
+                      tuple(pick(lambda o, i=i: o.levels[i]) for i in range(len(out.levels))), pick(lambda o: o.group),
+                      None if out.halves is None or redo_out.halves is None else
+                      np.column_stack([o.halves[:, k] for o, _, k in src]).reshape(2, -1))
     if ev is None or redo_ev is None:
         return merged, None
     new_ev = {j: e[k] for j, (_, e, k) in enumerate(src) if k in e}
@@ -690,7 +716,7 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         bounds = segment_bounds(r.shape[1], max(int(round(n_segments * r.shape[1] / total)), 1))
         cuts += [(i, a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     jackknife_cuts = cuts if uncertainty == "jackknife" and len(cuts) >= 3 else None
-    f, z, u, fitted, rep, se, input_level, group = refine_modes_ml(
+    f, z, u, fitted, rep, se, input_level, group, halves = refine_modes_ml(
         unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines, segments=jackknife_cuts, evidence=evidence,
         direction_scale=ch, **options)
     levels = (np.where(fitted, input_level, np.nan), np.where(fitted, se[3], np.nan))
@@ -700,16 +726,16 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         v = u[:, k] * ch
         out[:, k] = v / np.linalg.norm(v) * (np.linalg.norm(shapes[:, k]) if k < f_hat.size else 1.0)
     if uncertainty == "information":
-        return _Refined(f, z, out, fitted, (se[0], z * se[1], se[2]), levels, group)
+        return _Refined(f, z, out, fitted, (se[0], z * se[1], se[2]), levels, group, halves)
     if rep is None:
-        return _Refined(f, z, out, fitted, None, levels, group)
+        return _Refined(f, z, out, fitted, None, levels, group, halves)
     # the jackknife spread of the direction's angle from the full-record one (rad)
     f_se = jackknife(rep[0])[1]
     z_se = jackknife(rep[1])[1]
     a = rep[2]
     cnt = np.isfinite(a).sum(axis=0)
     u_se = np.where(cnt >= 3, np.sqrt((cnt - 1) / np.maximum(cnt, 1) * np.nansum(a ** 2, axis=0)), np.nan)
-    return _Refined(f, z, out, fitted, (f_se, z_se, u_se), levels, group)
+    return _Refined(f, z, out, fitted, (f_se, z_se, u_se), levels, group, halves)
 
 
 def _spectral_matrix(residuals, fs, nperseg: int):
