@@ -53,7 +53,7 @@ import numpy as np
 from ._ml_fit import _TAIL_PARENT, _finish, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
 from ._ml_inference import _information_se, _input_slope, _missing_mode, _mode_gain, _mode_penalty, _new_mode_apart
 from .blocks import block_bins, pool
-from .whittle import _fisher, _input_level, _nll, _unpack
+from .whittle import _fisher, _input_level, _unpack
 
 __all__ = ["refine_modes_ml", "RefinedModes"]
 
@@ -255,8 +255,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         so these groups' results are those of the fit of every group).
     halves : bool
         Also refit each group on the first half of every record and on the second half (the other
-        half zeroed, the rest scaled to the same power), by Fisher scoring from the full-record
-        optimum like the jackknife's replicates (``RefinedModes.halves``): a mode whose frequency
+        half zeroed, the rest scaled to the same power), from the full-record optimum by Fisher
+        scoring and at most :data:`HALF_FINISH_ITER` BFGS iterations (``RefinedModes.halves``; no
+        value where the refit takes a mode more than half its band away): a mode whose frequency
         differs between the halves by more than their noise drifted during the records.
     residual_terms : {'auto', False, 'known', 'background', True} or a sequence of them
         The tails of the modes outside a group's band: a constant background (False); the
