@@ -380,26 +380,7 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     signals: list[PreparedSignals] = [prepare_record(r) for r in records]
     for r, s in zip(records, signals):
         check_duration(r, s.n_samples)
-    harmonics: list[Harmonics | None] = []
-    backgrounds: list[BackgroundEstimate] = []
-    for r, s in zip(records, signals):
-        name = r.name or "record"
-        rpm, teeth = r.cut.spindle_rpm, r.tool.teeth
-        if rpm is None or rpm <= 0:
-            warnings.append(f"{name}: no spindle speed; milling harmonics not removed")
-            h = None
-        else:
-            h = find_harmonics(s.force_N, fs, rpm, teeth, refine=refine_harmonics)
-            shift = h.spindle_hz / h.nominal_spindle_hz - 1.0
-            if abs(shift) > 0.005:
-                warnings.append(
-                    f"{name}: spindle speed refined from the force spectrum: {rpm:.0f} rpm nominal, "
-                    f"{h.spindle_rpm:.0f} rpm found ({100 * shift:+.1f} %)"
-                )
-        harmonics.append(h)
-        noise = r.sensors.force_noise_variance_N2 if r.sensors is not None else None
-        hh = h if h is not None else Harmonics(fs, fs, 1, [], [], [])
-        backgrounds.append(background_variance(s.force_N, fs, hh, sensor_noise_variance_N2=noise))
+    harmonics, backgrounds = _milling_lines(records, signals, fs, refine_harmonics, warnings)
     durations = np.array([s.duration_s for s in signals])
     noise_var = np.sum([b.variance_N2 * d for b, d in zip(backgrounds, durations)], axis=0) / durations.sum()
 
@@ -408,58 +389,8 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     names = [r.name or f"record {i}" for i, r in enumerate(records)]
     with np.errstate(divide="ignore"):
         weights = np.where(np.isfinite(est.std_m_N), 1.0 / est.std_m_N, 0.0)
-    df = est.freq_hz[1] - est.freq_hz[0]
-    mfit = None
-    if method == "h1" or df <= MIN_RESOLVED_BANDWIDTH_HZ:
-        try:
-            mfit = fit_modal_model(est.table, weights=weights, band_hz=band,
-                                   source={"method": "oma-h1", "records": names})
-        except ValueError as exc:  # no stable mode in the H1 estimate
-            if method == "h1":
-                raise
-            warnings.append(f"H1 modal fit failed ({exc}); modes searched in the time domain")
-    tfit = None
-    artefacts = None
-    model = None if mfit is None else mfit.model
-    if method == "default":
-        start = None if mfit is None else mfit.model
-        resolved = start is not None and bool(
-            np.all(df < 2.0 * start.damping_ratio * start.natural_frequency_hz)
-        )
-        # when the Welch lines are narrower than every fitted mode's half-power band, the H1 fit
-        # has found the modes and the time-domain fit refines them; otherwise (short records)
-        # the time-domain fit searches for the modes itself
-        noise_n2 = [_force_error_variance(r) for r in records]
-
-        def refit(keep=None, previous=None):
-            # refits after the first start from the last one's modes (the first may have been led astray)
-            initial, search = (start, False) if resolved else (None, True)
-            if previous is not None:
-                initial, search = previous.model, False
-            return fit_time_domain(signals, harmonics, initial, search=search, force_noise_variance_N2=noise_n2,
-                                   keep_samples=keep, source={"method": "oma-time-domain", "records": names})
-
-        try:
-            tfit = refit()
-            if not tfit.quantised:
-                # samples no model explains (spikes, edge artefacts) are left out and the fit repeated
-                tfit, artefacts = fit_without_artefacts(signals, harmonics, tfit, refit)
-        except NoModeFound as exc:  # no mode at all: nothing in the records but rounding noise
-            if mfit is None:
-                try:
-                    mfit = fit_modal_model(est.table, weights=weights, band_hz=band,
-                                           source={"method": "oma-h1", "records": names})
-                except ValueError:
-                    raise ValueError(f"no mode could be identified from the records ({exc}); is the "
-                                     "tool-tip displacement moving at all beyond the sensor resolution?") from exc
-            model = mfit.model
-            warnings.append(f"time-domain fit found no mode ({exc}); the H1 fit is reported")
-        if tfit is not None:
-            model = tfit.model
-            if not tfit.success:
-                warnings.append(f"time-domain fit: {tfit.message}")
-        if artefacts is not None:
-            warnings += artefact_warnings(artefacts, names, fs)
+    model, mfit, tfit, artefacts = _fitted(records, signals, harmonics, est, weights, band, names, method, fs,
+                                           warnings)
 
     # an unquantised time-domain fit far worse than the H1 fit of the same records was led astray
     agree = True
@@ -494,56 +425,12 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     if tfit_reported:
         ferr = np.where(np.isfinite(ferr), tfit.fit_error, np.nan)
 
-    # detectability over the longest record: the records are identified together, so the model is
-    # at least as well informed as by its best-excited record alone (several records of one pose
-    # are never less trustworthy than one of them)
-    resolution = None
-    for r, s in zip(records, signals):
-        res = r.sensors.displacement_resolution_m if r.sensors is not None else None
-        res = res if res is not None else s.quantisation_step_m
-        if res is not None:
-            resolution = max(resolution or 0.0, float(res))
     measured_axes = [a for a in range(3) if est.table.measured[a, a]]
-    det = detectability(model, float(durations.max()), fs, resolution, noise_var, axes=measured_axes,
-                        n_trials=n_trials, rng=rng)
-    # the same criterion on the records themselves: the model's response to the measured
-    # background force (harmonics, mean and trend removed; run in on the time-reversed force) must
-    # also reach the resolution. A model fitted to an under-excited record is itself unreliable,
-    # so the simulated (Monte-Carlo) verdict alone could be fooled by it. Best record, as above.
-    p2v_meas = np.zeros(3)
-    for s, h in zip(signals, harmonics):
-        ok = s.force_axes
-        f_bg = np.zeros_like(s.force_N)
-        hz = h.freq_hz if h is not None else np.zeros(0)
-        f_bg[ok] = s.force_N[ok] - fit_harmonic_signal(s.force_N[ok], fs, hz)
-        x = simulate_response(model, np.hstack([f_bg[:, ::-1], f_bg]), fs)[:, s.n_samples :]
-        p2v_meas = np.maximum(p2v_meas, np.ptp(x, axis=1))
-    sufficient = np.array(det.sufficient)
-    for a in range(3):
-        if a not in measured_axes:  # no motion recorded along it: nothing shows the excitation
-            sufficient[a] = False
-            warnings.append(f"{AXES[a]}: no tool-tip motion along {AXES[a]} in the records; "
-                            f"the model says nothing reliable along {AXES[a]}")
-    if resolution is not None:
-        for a in measured_axes:
-            if p2v_meas[a] < resolution:
-                sufficient[a] = False
-    if resolution is None:
-        warnings.append("no displacement resolution known; detectability not assessed")
+    det, sufficient, short = _excitation(model, records, signals, harmonics, fs, durations, noise_var, measured_axes,
+                                         n_trials, rng, warnings)
     for a in measured_axes:
-        if det.assessed[a] and not det.sufficient[a]:
-            warnings.append(
-                f"{AXES[a]}: background force variance {noise_var[a]:.1f} N^2 is below the "
-                f"{det.min_variance_N2[a]:.1f} N^2 the displacement sensor can resolve in "
-                f"{durations.max():.2f} s: the {AXES[a]} modes are not reliably identified"
-            )
-        elif resolution is not None and p2v_meas[a] < resolution:
-            warnings.append(
-                f"{AXES[a]}: the background force moves the tool by only "
-                f"{1e6 * p2v_meas[a]:.1f} um peak to valley{' in the best-excited record' if len(records) > 1 else ''}, "
-                f"below the {1e6 * resolution:.1f} um the "
-                f"displacement sensor can resolve: the {AXES[a]} modes are not reliably identified"
-            )
+        if a in short:
+            warnings.append(short[a])
         if np.isfinite(ferr[a]) and ferr[a] > max_fit_error:
             what = "the measured displacement (beyond its rounding)" if tfit_reported else "the H1 estimate"
             warnings.append(f"{AXES[a]}: the model misses {what} by {100 * ferr[a]:.0f} % (fit error)")
@@ -592,3 +479,146 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         detectability=det,
         upper_residual=upper,
     )
+
+
+def _milling_lines(records, signals, fs, refine_harmonics, warnings):
+    """Per record the milling harmonics of the force (None without a spindle speed; the speed
+    refined from the force's comb, said when it moved by more than 0.5 %) and the background
+    force's variance left beside them."""
+    harmonics: list[Harmonics | None] = []
+    backgrounds: list[BackgroundEstimate] = []
+    for r, s in zip(records, signals):
+        name = r.name or "record"
+        rpm, teeth = r.cut.spindle_rpm, r.tool.teeth
+        if rpm is None or rpm <= 0:
+            warnings.append(f"{name}: no spindle speed; milling harmonics not removed")
+            h = None
+        else:
+            h = find_harmonics(s.force_N, fs, rpm, teeth, refine=refine_harmonics)
+            shift = h.spindle_hz / h.nominal_spindle_hz - 1.0
+            if abs(shift) > 0.005:
+                warnings.append(
+                    f"{name}: spindle speed refined from the force spectrum: {rpm:.0f} rpm nominal, "
+                    f"{h.spindle_rpm:.0f} rpm found ({100 * shift:+.1f} %)"
+                )
+        harmonics.append(h)
+        noise = r.sensors.force_noise_variance_N2 if r.sensors is not None else None
+        hh = h if h is not None else Harmonics(fs, fs, 1, [], [], [])
+        backgrounds.append(background_variance(s.force_N, fs, hh, sensor_noise_variance_N2=noise))
+    return harmonics, backgrounds
+
+
+def _fitted(records, signals, harmonics, est, weights, band, names, method, fs, warnings):
+    """The modal model (H1's with ``method='h1'``, else the time-domain fit's), the H1 modal fit,
+    the time-domain fit and its artefacts (None where not run)."""
+    df = est.freq_hz[1] - est.freq_hz[0]
+    mfit = None
+    if method == "h1" or df <= MIN_RESOLVED_BANDWIDTH_HZ:
+        try:
+            mfit = fit_modal_model(est.table, weights=weights, band_hz=band,
+                                   source={"method": "oma-h1", "records": names})
+        except ValueError as exc:  # no stable mode in the H1 estimate
+            if method == "h1":
+                raise
+            warnings.append(f"H1 modal fit failed ({exc}); modes searched in the time domain")
+    tfit = None
+    artefacts = None
+    model = None if mfit is None else mfit.model
+    if method != "default":
+        return model, mfit, tfit, artefacts
+    start = None if mfit is None else mfit.model
+    resolved = start is not None and bool(
+        np.all(df < 2.0 * start.damping_ratio * start.natural_frequency_hz)
+    )
+    # when the Welch lines are narrower than every fitted mode's half-power band, the H1 fit has
+    # found the modes and the time-domain fit refines them; otherwise (short records) the
+    # time-domain fit searches for the modes itself
+    noise_n2 = [_force_error_variance(r) for r in records]
+
+    def refit(keep=None, previous=None):
+        # refits after the first start from the last one's modes (the first may have been led astray)
+        initial, search = (start, False) if resolved else (None, True)
+        if previous is not None:
+            initial, search = previous.model, False
+        return fit_time_domain(signals, harmonics, initial, search=search, force_noise_variance_N2=noise_n2,
+                               keep_samples=keep, source={"method": "oma-time-domain", "records": names})
+
+    try:
+        tfit = refit()
+        if not tfit.quantised:
+            # samples no model explains (spikes, edge artefacts) are left out and the fit repeated
+            tfit, artefacts = fit_without_artefacts(signals, harmonics, tfit, refit)
+    except NoModeFound as exc:  # no mode at all: nothing in the records but rounding noise
+        if mfit is None:
+            try:
+                mfit = fit_modal_model(est.table, weights=weights, band_hz=band,
+                                       source={"method": "oma-h1", "records": names})
+            except ValueError:
+                raise ValueError(f"no mode could be identified from the records ({exc}); is the "
+                                 "tool-tip displacement moving at all beyond the sensor resolution?") from exc
+        model = mfit.model
+        warnings.append(f"time-domain fit found no mode ({exc}); the H1 fit is reported")
+    if tfit is not None:
+        model = tfit.model
+        if not tfit.success:
+            warnings.append(f"time-domain fit: {tfit.message}")
+    if artefacts is not None:
+        warnings += artefact_warnings(artefacts, names, fs)
+    return model, mfit, tfit, artefacts
+
+
+def _excitation(model, records, signals, harmonics, fs, durations, noise_var, measured_axes, n_trials, rng,
+                warnings):
+    """Whether the records excite the model enough for the displacement sensor to resolve it, per
+    axis: the detectability of the model over the longest record (:func:`detectability`), and the
+    same criterion on the records themselves. Returns the detectability, the verdict per axis, and
+    the warning of each measured axis found short (the caller adds it, each beside that axis's fit
+    error)."""
+    # detectability over the longest record: the records are identified together, so the model is
+    # at least as well informed as by its best-excited record alone (several records of one pose
+    # are never less trustworthy than one of them)
+    resolution = None
+    for r, s in zip(records, signals):
+        res = r.sensors.displacement_resolution_m if r.sensors is not None else None
+        res = res if res is not None else s.quantisation_step_m
+        if res is not None:
+            resolution = max(resolution or 0.0, float(res))
+    det = detectability(model, float(durations.max()), fs, resolution, noise_var, axes=measured_axes,
+                        n_trials=n_trials, rng=rng)
+    # the same criterion on the records themselves: the model's response to the measured
+    # background force (harmonics, mean and trend removed; run in on the time-reversed force) must
+    # also reach the resolution. A model fitted to an under-excited record is itself unreliable,
+    # so the simulated (Monte-Carlo) verdict alone could be fooled by it. Best record, as above.
+    p2v_meas = np.zeros(3)
+    for s, h in zip(signals, harmonics):
+        ok = s.force_axes
+        f_bg = np.zeros_like(s.force_N)
+        hz = h.freq_hz if h is not None else np.zeros(0)
+        f_bg[ok] = s.force_N[ok] - fit_harmonic_signal(s.force_N[ok], fs, hz)
+        x = simulate_response(model, np.hstack([f_bg[:, ::-1], f_bg]), fs)[:, s.n_samples :]
+        p2v_meas = np.maximum(p2v_meas, np.ptp(x, axis=1))
+    sufficient = np.array(det.sufficient)
+    for a in range(3):
+        if a not in measured_axes:  # no motion recorded along it: nothing shows the excitation
+            sufficient[a] = False
+            warnings.append(f"{AXES[a]}: no tool-tip motion along {AXES[a]} in the records; "
+                            f"the model says nothing reliable along {AXES[a]}")
+    if resolution is not None:
+        for a in measured_axes:
+            if p2v_meas[a] < resolution:
+                sufficient[a] = False
+    if resolution is None:
+        warnings.append("no displacement resolution known; detectability not assessed")
+    short = {}
+    for a in measured_axes:
+        if det.assessed[a] and not det.sufficient[a]:
+            short[a] = (f"{AXES[a]}: background force variance {noise_var[a]:.1f} N^2 is below the "
+                        f"{det.min_variance_N2[a]:.1f} N^2 the displacement sensor can resolve in "
+                        f"{durations.max():.2f} s: the {AXES[a]} modes are not reliably identified")
+        elif resolution is not None and p2v_meas[a] < resolution:
+            short[a] = (f"{AXES[a]}: the background force moves the tool by only "
+                        f"{1e6 * p2v_meas[a]:.1f} um peak to valley"
+                        f"{' in the best-excited record' if len(records) > 1 else ''}, below the "
+                        f"{1e6 * resolution:.1f} um the displacement sensor can resolve: the {AXES[a]} modes are not "
+                        "reliably identified")
+    return det, sufficient, short
