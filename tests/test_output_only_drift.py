@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from drifting_records import drifting_record
 
-from oma.output_only.identify import DRIFT_Z, _drift_z, identify_output_only
+from oma.output_only.identify import DRIFT_Z, _half_record_shift, identify_output_only
 from oma.synthetic import paper_like_model
 
 
@@ -30,7 +30,7 @@ def test_modes_drifting_by_15_percent_are_named_with_their_halves(identified):
     truth = paper_like_model()
     for k in res.drifting_modes:
         f1, f2 = res.modes.half_freq_hz[k]
-        assert f2 < f1 and abs(_drift_z(res.modes)[k]) > DRIFT_Z
+        assert f2 < f1 and abs(_half_record_shift(res.modes)[1][k]) > DRIFT_Z
         r = int(np.argmin(np.abs(truth.natural_frequency_hz * 0.925 / res.modes.freq_hz[k] - 1)))
         f0 = truth.natural_frequency_hz[r]
         assert abs(f1 / (0.9625 * f0) - 1) < 0.03 and abs(f2 / (0.8875 * f0) - 1) < 0.03
@@ -44,5 +44,5 @@ def test_a_steady_record_names_no_drift_and_its_halves_agree_within_their_noise(
     res = identified[0.0]
     assert res.drifting_modes == () and res.to_dict()["drifting_modes"] == []
     assert not any("drifted" in w for w in res.warnings)
-    z = _drift_z(res.modes)
+    z = _half_record_shift(res.modes)[1]
     assert np.all(np.isfinite(z)) and np.all(np.abs(z) < 3.0)

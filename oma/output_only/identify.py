@@ -181,10 +181,10 @@ class OutputOnlyIdentification:
             {"freq_hz": float(self.modes.freq_hz[k]),
              "direction_standard_error_deg": float(np.degrees(self.modes.direction_se_rad[k]))}
             for k in self.undetermined_directions]
+        z = _half_record_shift(self.modes)[1]
         out["drifting_modes"] = [
             {"freq_hz": float(self.modes.freq_hz[k]),
-             "half_record_frequency_hz": [float(v) for v in self.modes.half_freq_hz[k]],
-             "z": float(_drift_z(self.modes)[k])}
+             "half_record_frequency_hz": [float(v) for v in self.modes.half_freq_hz[k]], "z": float(z[k])}
             for k in self.drifting_modes]
         out["warnings"] = list(self.warnings)
         return out
@@ -427,10 +427,10 @@ def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _
     # (DOMAIN.md's pose drift; session 26: with every frequency drifting by 15 % over a 20 s
     # record, damping came out 9-33 % high in the median, frequencies up to 4.9 % off and 2 of 18
     # modes were lost, with no word of why)
-    z = _drift_z(modes)
+    shift, z = _half_record_shift(modes)
     with np.errstate(invalid="ignore"):
-        moved = np.abs(np.diff(modes.half_freq_hz, axis=1)[:, 0])
-        drifting = np.flatnonzero((np.abs(z) > DRIFT_Z) & (moved > DRIFT_WIDTHS * modes.damping_ratio * modes.freq_hz))
+        drifting = np.flatnonzero((np.abs(z) > DRIFT_Z)
+                                  & (np.abs(shift) > DRIFT_WIDTHS * modes.damping_ratio * modes.freq_hz))
     for k in drifting:
         f1, f2 = modes.half_freq_hz[k]
         warnings.append(f"mode at {modes.freq_hz[k]:.2f} Hz: {f1:.2f} Hz in the first half of the record and "
@@ -441,12 +441,13 @@ def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _
     return _Checks(unsteady, peaks, unresolved, loose, drifting, residuals, lines)
 
 
-def _drift_z(modes: OutputOnlyModes) -> np.ndarray:
-    """Per mode, the difference of its frequency refitted on the records' second and first halves
-    in standard errors of that difference (twice the full record's frequency error), NaN where
-    either is missing."""
+def _half_record_shift(modes: OutputOnlyModes) -> tuple[np.ndarray, np.ndarray]:
+    """Per mode, its frequency refitted on the records' second half less that on the first (Hz),
+    and that difference in its standard errors (twice the full record's frequency error); NaN
+    where either half is missing."""
+    shift = np.diff(modes.half_freq_hz, axis=1)[:, 0]
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.diff(modes.half_freq_hz, axis=1)[:, 0] / (2.0 * modes.freq_se_hz)
+        return shift, shift / (2.0 * modes.freq_se_hz)
 
 
 class _Scaled(NamedTuple):

@@ -675,7 +675,7 @@ def _merged(out: "_Refined", ev, redo_out: "_Refined", redo_ev, redo):
                       np.column_stack([o.shapes[:, k] for o, _, k in src]), pick(lambda o: o.fitted), ses,
                       tuple(pick(lambda o, i=i: o.levels[i]) for i in range(len(out.levels))), pick(lambda o: o.group),
                       None if out.halves is None or redo_out.halves is None else
-                      np.column_stack([o.halves[:, k] for o, _, k in src]).reshape(2, -1))
+                      np.column_stack([o.halves[:, k] for o, _, k in src]))
     if ev is None or redo_ev is None:
         return merged, None
     new_ev = {j: e[k] for j, (_, e, k) in enumerate(src) if k in e}
