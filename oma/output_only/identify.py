@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
+from scipy import stats
 
 from .._identify_checks import check_same_pose
 from ..errors import RecordError
@@ -72,6 +73,20 @@ DRIFT_Z = 5.0
 #: more than its width, so that the damping read from it is the drift's (at 15 % drift the flagged
 #: modes' differences were 1.5-1.8 half-widths).
 DRIFT_WIDTHS = 1.0
+#: A mode's directions are complex (a phase between the channels that real modes cannot have: a
+#: damping that is not proportional, gyroscopic coupling, or a forced response at the mode) when
+#: the score test of complex directions (``OutputOnlyModes.complex_test``) rejects the real ones
+#: at this level, the probability of a normal variable beyond 5 standard errors (as
+#: :data:`DRIFT_Z`; chi-squared on 2 degrees of freedom over 28.7), ...
+COMPLEX_P = 5.733e-7
+#: ... and the direction one step towards complex ones has at least this complexity (practical
+#: significance). Measured (session 27, ``bench_oma_independent.py``): 1 100 modes of 350 records
+#: of real modes (the benchmark's 7 cases x 20, the independent generator's 7 structures x 10 x 3
+#: quantities) gave statistics with a mean 0.93-0.96 times their degrees of freedom, at most 11.5,
+#: and complexities at most 0.04; whirling pairs of complexity 0.03 / 0.04 (their frequencies and
+#: damping inside their intervals in 93 and 100 % of 10 records) read 5-29 and 0.01-0.06, of
+#: complexity 0.10 / 0.13 (intervals covering 73 and 87 %) 19-39 and 0.09-0.17.
+COMPLEX_MIN = 0.05
 AXES = ("X", "Y", "Z")
 
 
@@ -114,6 +129,9 @@ class OutputOnlyIdentification:
     drifting_modes : tuple of int
         Modes whose frequency moved between the records' halves (:data:`DRIFT_Z`,
         :data:`DRIFT_WIDTHS`); any leaves the model untrusted.
+    complex_modes : tuple of int
+        Modes whose directions the score test finds complex (:data:`COMPLEX_P`,
+        :data:`COMPLEX_MIN`); any leaves the model untrusted.
     directions_source : str
         Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
         ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_directions`, and
@@ -136,6 +154,7 @@ class OutputOnlyIdentification:
     undetermined_directions: tuple = ()
     directions_source: str = "resonance band"
     drifting_modes: tuple = ()
+    complex_modes: tuple = ()
 
     @property
     def scaled(self) -> bool:
@@ -186,6 +205,7 @@ class OutputOnlyIdentification:
             {"freq_hz": float(self.modes.freq_hz[k]),
              "half_record_frequency_hz": [float(v) for v in self.modes.half_freq_hz[k]], "z": float(z[k])}
             for k in self.drifting_modes]
+        out["complex_modes"] = [_complex_entry(self.modes, k) for k in self.complex_modes]
         out["warnings"] = list(self.warnings)
         return out
 
@@ -273,7 +293,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                    and np.all(np.isfinite(k)) and np.all(np.isfinite(modes.damping_se))
                    and not stiffness.misfit > MAX_LINE_MISFIT and not sc.above and not checks.unsteady
                    and not np.any(modes.damping_ratio < LOW_DAMPING) and not checks.peaks and not checks.unresolved
-                   and not checks.loose.size and not checks.drifting.size and not sc.levels_disagree)
+                   and not checks.loose.size and not checks.drifting.size and not checks.complex.size
+                   and not sc.levels_disagree)
     if not trusted:
         warnings.append("the identified model is NOT trusted (see the warnings above)")
     model = ModalModel(
@@ -294,7 +315,8 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                                     unexplained_peaks=tuple(checks.peaks), unresolved_modes=tuple(checks.unresolved),
                                     undetermined_directions=tuple(int(k) for k in checks.loose),
                                     directions_source=sc.directions_source,
-                                    drifting_modes=tuple(int(k) for k in checks.drifting))
+                                    drifting_modes=tuple(int(k) for k in checks.drifting),
+                                    complex_modes=tuple(int(k) for k in checks.complex))
 
 
 def _motion_signals(records, fs, warnings):
@@ -373,6 +395,7 @@ class _Checks(NamedTuple):
     unresolved: list        # modes whose band holds a second shape
     loose: np.ndarray       # indices of modes whose direction the record does not pin
     drifting: np.ndarray    # indices of modes whose frequency moved between the records' halves
+    complex: np.ndarray     # indices of modes whose directions are complex (beyond their errors)
     residuals: list
     lines: np.ndarray
 
@@ -438,7 +461,34 @@ def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _
                         "half-width): the modes drifted during the cut (the arm moving along it?); the values are "
                         "the record's mean, the damping is widened by the drift and the intervals are too narrow; "
                         "identify shorter stretches of the cut; the model is not trusted")
-    return _Checks(unsteady, peaks, unresolved, loose, drifting, residuals, lines)
+    # a mode whose directions are complex: the real-mode model's values and intervals do not hold
+    # (session 27: ``bench_oma_independent.py``'s whirling pairs)
+    complex_ = _complex_directions(modes)
+    for k in complex_:
+        stat, dof, cx = modes.complex_test[k]
+        warnings.append(f"mode at {modes.freq_hz[k]:.2f} Hz: its response has a phase between the channels that a "
+                        f"real mode cannot have (score test of complex directions {stat:.1f} on {dof:.0f} degrees of "
+                        f"freedom, p = {stats.chi2.sf(stat, dof):.1g}; complexity about {cx:.2f}): a damping that is "
+                        "not proportional, gyroscopic coupling or a forced response at the mode; its values and "
+                        "intervals are those of a real mode and may not hold (with complexity 0.1 frequency "
+                        "intervals covered 73 % of whirling modes); the model is not trusted")
+    return _Checks(unsteady, peaks, unresolved, loose, drifting, complex_, residuals, lines)
+
+
+def _complex_directions(modes: OutputOnlyModes) -> np.ndarray:
+    """The modes whose directions are complex: by :data:`COMPLEX_P`, with a complexity of at least
+    :data:`COMPLEX_MIN`."""
+    stat, dof, cx = modes.complex_test.T
+    with np.errstate(invalid="ignore"):
+        p = np.where(np.isfinite(stat), stats.chi2.sf(stat, np.where(np.isfinite(dof), dof, 1.0)), np.nan)
+        return np.flatnonzero((p < COMPLEX_P) & (cx >= COMPLEX_MIN))
+
+
+def _complex_entry(modes: OutputOnlyModes, k: int) -> dict:
+    """A named complex mode's JSON entry."""
+    stat, dof, cx = modes.complex_test[k]
+    return {"freq_hz": float(modes.freq_hz[k]), "statistic": float(stat), "degrees_of_freedom": int(dof),
+            "p_value": float(stats.chi2.sf(stat, dof)), "complexity": float(cx)}
 
 
 def _half_record_shift(modes: OutputOnlyModes) -> tuple[np.ndarray, np.ndarray]:

@@ -51,7 +51,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ._ml_fit import _TAIL_PARENT, _finish, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
-from ._ml_inference import _information_se, _input_slope, _missing_mode, _mode_gain, _mode_penalty, _new_mode_apart
+from ._ml_inference import (_complex_directions, _information_se, _input_slope, _missing_mode, _mode_gain,
+                            _mode_penalty, _new_mode_apart)
 from .blocks import block_bins, pool
 from .whittle import _fisher, _input_level, _unpack
 
@@ -171,6 +172,7 @@ class RefinedModes(NamedTuple):
     input_level: np.ndarray
     group: np.ndarray
     halves: np.ndarray | None = None
+    complex_test: np.ndarray | None = None
 
 
 def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directions, *, derivative: int = 2,
@@ -178,7 +180,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
                     line_guard_hz: float = LINE_GUARD_HZ, max_iter: int = 40, evidence: dict | None = None,
                     segments=None, residual_terms="auto", direction_scale=None,
                     add_missing: float | None = ADD_SIGMAS, band_hz=(0.0, np.inf), input_slope: bool = True,
-                    slopes: dict | None = None, fit_only=None, halves: bool = False):
+                    slopes: dict | None = None, fit_only=None, halves: bool = False, complex_check: bool = False):
     """Whittle-ML frequency, damping and direction of output-only modes (see the module docstring).
 
     Parameters
@@ -259,6 +261,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
         scoring and at most :data:`HALF_FINISH_ITER` BFGS iterations (``RefinedModes.halves``; no
         value where the refit takes a mode more than half its band away): a mode whose frequency
         differs between the halves by more than their noise drifted during the records.
+    complex_check : bool
+        Also test each group's real directions against complex ones at its optimum
+        (:func:`oma.output_only._ml_inference._complex_directions`; ``RefinedModes.complex_test``).
     residual_terms : {'auto', False, 'known', 'background', True} or a sequence of them
         The tails of the modes outside a group's band: a constant background (False); the
         responses of the other modes found (``'known'``: each ``u_j / D_j(w)`` at its estimated
@@ -301,6 +306,9 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     halves : ndarray, shape (2, m + a) or None
         With ``halves``: each mode's frequency refitted on the records' first and second halves
         (NaN where not fitted).
+    complex_test : ndarray, shape (3, m + a) or None
+        With ``complex_check``: the score statistic of complex directions, its degrees of freedom,
+        and the complexity one step towards complex directions gives (NaN where not fitted).
     """
     f0 = np.asarray(freq_hz, dtype=float)
     z0 = np.asarray(damping, dtype=float)
@@ -311,7 +319,8 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     run = _Refinement(f0, z0, u0, groups, n_segments=None if segments is None else len(segments),
                       derivative=derivative, lines_hz=lines_hz, half_width=half_width,
                       min_half_width_hz=min_half_width_hz, line_guard_hz=line_guard_hz, max_iter=max_iter,
-                      kinds=kinds, input_slope=input_slope, direction_scale=direction_scale)
+                      kinds=kinds, input_slope=input_slope, direction_scale=direction_scale,
+                      complex_check=complex_check)
     if f0.size:
         run.read(residuals, float(sample_rate_hz), segments, halves=halves)
         only = None if fit_only is None else np.asarray(fit_only, dtype=bool)
@@ -324,7 +333,7 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     if slopes is not None:
         slopes.update(beta=run.beta, beta_se=run.beta_se)
     return RefinedModes(run.f_out, run.z_out, run.u_out, run.ok, run.reps, run.se, run.level, run.group,
-                        run.half_f if halves else None)
+                        run.half_f if halves else None, run.complex if complex_check else None)
 
 
 class _Bins(NamedTuple):
@@ -346,7 +355,7 @@ class _Refinement:
     taken out of their bands dropped, the scan for a mode SSI missed, the finish, the result."""
 
     def __init__(self, f0, z0, u0, groups, *, n_segments, derivative, lines_hz, half_width, min_half_width_hz,
-                 line_guard_hz, max_iter, kinds, input_slope, direction_scale):
+                 line_guard_hz, max_iter, kinds, input_slope, direction_scale, complex_check=False):
         self.f0, self.z0, self.u0 = f0, z0, u0
         self.hw = np.maximum(half_width * z0 * f0, min_half_width_hz)
         self.half_width, self.min_half_width_hz = half_width, min_half_width_hz
@@ -362,6 +371,7 @@ class _Refinement:
         self.level = np.full(n, np.nan)
         self.beta, self.beta_se = np.full(n, np.nan), np.full(n, np.nan)
         self.half_f = np.full((2, n), np.nan)
+        self.complex_check, self.complex = complex_check, np.full((3, n), np.nan)
         self.gapped, self.halved = [], []
         self.dropped = np.zeros(n, dtype=bool)
         self.duplicated = np.zeros(n, dtype=bool)
@@ -594,6 +604,7 @@ class _Refinement:
         self.level = np.append(self.level, np.nan)
         self.beta, self.beta_se = np.append(self.beta, np.nan), np.append(self.beta_se, np.nan)
         self.half_f = np.column_stack([self.half_f, np.full(2, np.nan)])
+        self.complex = np.column_stack([self.complex, np.full(3, np.nan)])
         if self.reps is not None:
             self.reps = np.concatenate([self.reps, np.full((3, self.reps.shape[1], 1), np.nan)], axis=2)
 
@@ -614,7 +625,8 @@ class _Refinement:
 
     def store(self, g, fit, band, bins: _Bins, slopes: bool):
         """The group's results: values, directions in the records' channels, standard errors from
-        the information, input level (and slope), and the replicates' refits."""
+        the information, input level (and slope), the test of complex directions, and the
+        replicates' refits."""
         f, z, u, fun, px, mod = fit
         scale = bins.scale
         self.f_out[g], self.z_out[g] = f, z
@@ -626,6 +638,8 @@ class _Refinement:
         self.level[g] = _input_level(px, mod, self.derivative, self.dscale * scale)[0]
         if slopes and mod.slope:
             self.beta[g], self.beta_se[g] = _input_slope(px, mod, bins.x)
+        if self.complex_check:
+            self.complex[:, g] = _complex_directions(px, mod, bins.x, self.dscale * scale)
         if not (self.gapped or self.halved):
             return
         # the information is the expected one (it depends on the parameters, not the data): every

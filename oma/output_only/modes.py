@@ -107,6 +107,12 @@ class OutputOnlyModes:
         Each refined mode's frequency refitted on the first and on the second half of the records
         (``drift_check`` of :func:`output_only_modes`; NaN where not refined): a difference beyond
         their noise says the mode drifted during the cut (:mod:`oma.output_only.identify`).
+    complex_test : ndarray, shape (n_modes, 3)
+        Per refined mode (``complex_check`` of :func:`output_only_modes`; NaN where not refined):
+        the score statistic of complex directions against the real ones fitted, its degrees of
+        freedom (chi-squared where the mode is real) and the complexity of the direction one step
+        towards complex ones gives (0 real, 1 circular)
+        (:func:`oma.output_only._ml_inference._complex_directions`).
     """
 
     freq_hz: np.ndarray
@@ -128,16 +134,18 @@ class OutputOnlyModes:
     input_level: np.ndarray | None = None
     input_level_log_se: np.ndarray | None = None
     half_freq_hz: np.ndarray | None = None
+    complex_test: np.ndarray | None = None
 
     def __post_init__(self):
         for name in ("input_level", "input_level_log_se"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(self.freq_hz.shape, np.nan))
-        if self.half_freq_hz is None:
-            object.__setattr__(self, "half_freq_hz", np.full((self.freq_hz.size, 2), np.nan))
+        for name, width in (("half_freq_hz", 2), ("complex_test", 3)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full((self.freq_hz.size, width), np.nan))
         for name in ("freq_hz", "damping_ratio", "freq_se_hz", "damping_se", "freq_interval_hz",
                      "damping_interval", "directions", "support", "rejected_hz", "direction_se_rad",
-                     "input_level", "input_level_log_se", "half_freq_hz"):
+                     "input_level", "input_level_log_se", "half_freq_hz", "complex_test"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
         object.__setattr__(self, "shapes", _ro(self.shapes, complex))
         object.__setattr__(self, "harmonics", tuple(self.harmonics))
@@ -161,11 +169,14 @@ class OutputOnlyModes:
                  "frequency_interval_hz": [float(v) for v in fi], "damping_interval": [float(v) for v in zi],
                  "frequency_standard_error_hz": float(fs), "damping_standard_error": float(zs),
                  "direction_standard_error_deg": float(np.degrees(d)), "support": float(s),
-                 "half_record_frequency_hz": [float(v) for v in h]}
-                for f, z, u, fi, zi, fs, zs, s, d, h in zip(self.freq_hz, self.damping_ratio, self.directions,
-                                                            self.freq_interval_hz, self.damping_interval,
-                                                            self.freq_se_hz, self.damping_se, self.support,
-                                                            self.direction_se_rad, self.half_freq_hz)
+                 "half_record_frequency_hz": [float(v) for v in h],
+                 "complex_direction_test": {"statistic": float(c[0]), "degrees_of_freedom": float(c[1]),
+                                            "complexity": float(c[2])}}
+                for f, z, u, fi, zi, fs, zs, s, d, h, c in zip(self.freq_hz, self.damping_ratio, self.directions,
+                                                               self.freq_interval_hz, self.damping_interval,
+                                                               self.freq_se_hz, self.damping_se, self.support,
+                                                               self.direction_se_rad, self.half_freq_hz,
+                                                               self.complex_test)
             ],
             "interval_level": self.level,
             "band_hz": [float(b) for b in self.band_hz],
@@ -186,7 +197,8 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
                        ml_refine: bool = True, ml_directions: bool = True, derivative: int = 2,
                        ssi_derivatives: tuple | None = (2, 0), ml_options: dict | None = None,
                        ml_evidence: bool = True, uncertainty: str = "information",
-                       seed_peaks: bool = True, drift_check: bool = True) -> OutputOnlyModes:
+                       seed_peaks: bool = True, drift_check: bool = True,
+                       complex_check: bool = True) -> OutputOnlyModes:
     """Modes, with intervals, from one or more response records of one pose.
 
     Parameters
@@ -275,6 +287,9 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
         With ``ml_refine``: refit each refined group on the first and on the second half of the
         records (``OutputOnlyModes.half_freq_hz``), from the full-record optimum by a few scoring
         steps (session 26: DOMAIN.md's pose drift).
+    complex_check : bool
+        With ``ml_refine``: test each refined group's real directions against complex ones
+        (``OutputOnlyModes.complex_test``; session 27).
     uncertainty : {'information', 'jackknife'}
         Standard errors of the refined modes: from the information at the optimum (default;
         the larger of the inverse Fisher information and the sandwich), or the delete-one-segment
@@ -300,7 +315,7 @@ def _output_only_modes(signals, sample_rate_hz: float, spindle_rpm, teeth, *, ba
     if fdd_directions and modes.n:
         modes = replace(modes, shapes=_fdd_shapes(raw, fs, modes.freq_hz, modes.damping, modes.shapes))
     if ml_refine and modes.n:
-        options = {"band_hz": (lo, hi), "halves": drift_check, **(ml_options or {})}
+        options = {"band_hz": (lo, hi), "halves": drift_check, "complex_check": complex_check, **(ml_options or {})}
         modes = _refined(modes, raw, fs, lines, derivative, n_segments, options,
                          evidence=ml_evidence, directions=ml_directions, uncertainty=uncertainty, warnings=warnings)
     return _reported(modes, axes, lines, (lo, hi), harmonics, rejected, n_seg, level, warnings)
@@ -324,6 +339,7 @@ class _Modes:
     input_level: np.ndarray | None = None       # the refinement's background level at the mode (None: NaN)
     input_level_se: np.ndarray | None = None    # ... and its log error
     half_freq: np.ndarray | None = None         # (2, n): refitted on the records' halves (None: NaN)
+    complex_test: np.ndarray | None = None      # (3, n): the test of complex directions (None: NaN)
 
     def __post_init__(self):
         n = self.n
@@ -331,8 +347,9 @@ class _Modes:
                            ("input_level_se", np.nan)):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(n, fill))
-        if self.half_freq is None:
-            object.__setattr__(self, "half_freq", np.full((2, n), np.nan))
+        for name, rows in (("half_freq", 2), ("complex_test", 3)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full((rows, n), np.nan))
 
     @property
     def n(self) -> int:
@@ -355,7 +372,7 @@ class _Modes:
 
 
 #: The fields of :class:`_Modes` that hold a column per mode.
-_COLUMNS = ("shapes", "half_freq")
+_COLUMNS = ("shapes", "half_freq", "complex_test")
 
 
 def _lines_removed(signals, axes, fs, spindle_rpm, teeth, *, refine, alias_up_to, integrate, highpass_hz):
@@ -526,7 +543,12 @@ def _refined(modes: _Modes, raw, fs, lines, derivative, n_segments, options, *, 
                    damping_se=z_se, direction_se=u_se, refined=fitted, from_information=from_information,
                    input_level=np.where(fitted, out.levels[0], np.nan),
                    input_level_se=np.where(fitted, out.levels[1], np.nan),
-                   half_freq=None if out.halves is None else np.where(fitted[None, :], out.halves, np.nan))
+                   half_freq=None if out.halves is None else np.where(fitted[None, :], out.halves, np.nan),
+                   # of every group's fit, also where SSI's values are kept (a real-direction fit
+                   # that moves a mode off SSI's pole may be one the phase defeats: session 27, a
+                   # whirling pair's lower mode)
+                   complex_test=None if out.complex_test is None else
+                   np.where(out.fitted[None, :], out.complex_test, np.nan))
 
 
 def _reported(modes: _Modes, axes, lines, band, harmonics, rejected, n_seg, level, warnings) -> OutputOnlyModes:
@@ -577,7 +599,7 @@ def _reported(modes: _Modes, axes, lines, band, harmonics, rejected, n_seg, leve
         directions=directions, shapes=full_shapes, support=m.support, harmonics=tuple(harmonics),
         direction_se_rad=m.direction_se, rejected_hz=rejected, band_hz=band, n_segments=n_seg, level=level,
         warnings=tuple(warnings), input_level=m.input_level, input_level_log_se=m.input_level_se,
-        half_freq_hz=m.half_freq.T,
+        half_freq_hz=m.half_freq.T, complex_test=m.complex_test.T,
     )
 
 
@@ -640,12 +662,13 @@ class _Refined(NamedTuple):
     levels: tuple            # the background level at the mode and its log error (NaN where not fitted)
     group: np.ndarray        # index of the fitted group
     halves: np.ndarray | None = None  # (2, n): the frequency refitted on the records' first and second halves
+    complex_test: np.ndarray | None = None  # (3, n): the test of complex directions
 
     def take(self, idx) -> "_Refined":
         return _Refined(self.freq_hz[idx], self.damping[idx], self.shapes[:, idx], self.fitted[idx],
                         None if self.se is None else tuple(a[idx] for a in self.se),
                         tuple(a[idx] for a in self.levels), self.group[idx],
-                        None if self.halves is None else self.halves[:, idx])
+                        *(None if a is None else a[:, idx] for a in (self.halves, self.complex_test)))
 
 
 def _moved(out: "_Refined", f_ssi, f_se) -> np.ndarray:
@@ -674,8 +697,8 @@ def _merged(out: "_Refined", ev, redo_out: "_Refined", redo_ev, redo):
     merged = _Refined(pick(lambda o: o.freq_hz), pick(lambda o: o.damping),
                       np.column_stack([o.shapes[:, k] for o, _, k in src]), pick(lambda o: o.fitted), ses,
                       tuple(pick(lambda o, i=i: o.levels[i]) for i in range(len(out.levels))), pick(lambda o: o.group),
-                      None if out.halves is None or redo_out.halves is None else
-                      np.column_stack([o.halves[:, k] for o, _, k in src]))
+                      *(None if getattr(out, name) is None or getattr(redo_out, name) is None else
+                        np.column_stack([getattr(o, name)[:, k] for o, _, k in src]) for name in ("halves", "complex_test")))
     if ev is None or redo_ev is None:
         return merged, None
     new_ev = {j: e[k] for j, (_, e, k) in enumerate(src) if k in e}
@@ -716,7 +739,7 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         bounds = segment_bounds(r.shape[1], max(int(round(n_segments * r.shape[1] / total)), 1))
         cuts += [(i, a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     jackknife_cuts = cuts if uncertainty == "jackknife" and len(cuts) >= 3 else None
-    f, z, u, fitted, rep, se, input_level, group, halves = refine_modes_ml(
+    f, z, u, fitted, rep, se, input_level, group, *checks = refine_modes_ml(
         unit, fs, f_hat, z_hat, u0, derivative=derivative, lines_hz=lines, segments=jackknife_cuts, evidence=evidence,
         direction_scale=ch, **options)
     levels = (np.where(fitted, input_level, np.nan), np.where(fitted, se[3], np.nan))
@@ -726,16 +749,16 @@ def _ml_refine(residuals, fs, f_hat, z_hat, shapes, lines, derivative, n_segment
         v = u[:, k] * ch
         out[:, k] = v / np.linalg.norm(v) * (np.linalg.norm(shapes[:, k]) if k < f_hat.size else 1.0)
     if uncertainty == "information":
-        return _Refined(f, z, out, fitted, (se[0], z * se[1], se[2]), levels, group, halves)
+        return _Refined(f, z, out, fitted, (se[0], z * se[1], se[2]), levels, group, *checks)
     if rep is None:
-        return _Refined(f, z, out, fitted, None, levels, group, halves)
+        return _Refined(f, z, out, fitted, None, levels, group, *checks)
     # the jackknife spread of the direction's angle from the full-record one (rad)
     f_se = jackknife(rep[0])[1]
     z_se = jackknife(rep[1])[1]
     a = rep[2]
     cnt = np.isfinite(a).sum(axis=0)
     u_se = np.where(cnt >= 3, np.sqrt((cnt - 1) / np.maximum(cnt, 1) * np.nansum(a ** 2, axis=0)), np.nan)
-    return _Refined(f, z, out, fitted, (f_se, z_se, u_se), levels, group, halves)
+    return _Refined(f, z, out, fitted, (f_se, z_se, u_se), levels, group, *checks)
 
 
 def _spectral_matrix(residuals, fs, nperseg: int):

@@ -227,13 +227,22 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     which is no bin's term)."""
     if not per_bin:
         return _nll_sum(p, mod, x)
+    val, grad, _ = _bin_scores(p, mod, x)
+    return val, grad
+
+
+def _bin_scores(p, mod: _Model, x):
+    """:func:`_nll` with ``per_bin``, and the complex ``b / d`` (K, m, l) of each bin, ``b = gain
+    (C V^H G)[:m]``: moving mode ``r``'s column of ``V`` by ``dv / d_r`` changes the bin's term by ``2
+    Re((b / d)_r . dv)`` (so ``dv`` real moves its direction; ``i dv`` turns it complex). None in
+    place of ``b / d`` where the model spectrum is not positive definite."""
     m = mod.m
     pp, q, d, v, vh, s = _spectrum(p, mod)
     u, c = pp.u, pp.c
     gain = _gain(pp, mod)
     white = _whitener(s)
     if white is None:
-        return 1e30, np.zeros((x.shape[0], p.size))
+        return 1e30, np.zeros((x.shape[0], p.size)), None
     linv, diag = white
     # the inverse through the Cholesky factor: ``S^-1 = L^-H L^-1`` stays positive definite where
     # ``inv(S)`` of a nearly singular spectrum does not (a refit once reached a quadratic form of
@@ -254,9 +263,10 @@ def _nll(p, mod: _Model, x, *, per_bin: bool = False):
     b = gain[:, None, None] * (c[None] @ vh @ gmat)[:, :m]                 # (K, m, l)
     bu = np.einsum("kra,ra->kr", b, u)                                     # (K, m)
     slope = mod.log_w * np.einsum("kij,ji->k", np.real(a), c) if mod.slope else 0.0
-    grad = _gradient(np.zeros((x.shape[0], p.size)), pp, mod, q, d, bu, b / d[:, :, None], np.real(a),
+    b_over_d = b / d[:, :, None]
+    grad = _gradient(np.zeros((x.shape[0], p.size)), pp, mod, q, d, bu, b_over_d, np.real(a),
                      np.real(gmat), slope, lambda t: t)
-    return val, grad
+    return val, grad, b_over_d
 
 
 def _response_derivatives(q, f, z, z0):
@@ -319,7 +329,24 @@ def _nll_sum(p, mod: _Model, x):
 
 
 def _fisher(p, mod: _Model):
-    """Fisher information of the Whittle likelihood, ``J_ij = Re sum_k tr(S^-1 dS_i S^-1 dS_j)``.
+    """Fisher information of the Whittle likelihood, ``J_ij = Re sum_k tr(S^-1 dS_i S^-1 dS_j)``
+    (:func:`_information_factor` ``R``: ``J = R^T R``, plus the slope's prior). None where the
+    model spectrum is not positive definite."""
+    r = _information_factor(p, mod)
+    if r is None:
+        return None
+    jm = r.T @ r
+    if mod.slope:
+        jm[-1, -1] += 1.0 / SLOPE_PRIOR_SD ** 2     # the slope's prior
+    return jm
+
+
+def _information_factor(p, mod: _Model, directions=None):
+    """The factor ``R`` (K l^2, n_params) of the Fisher information ``J = R^T R`` (without the
+    slope's prior), ``J_ij = Re sum_k tr(S^-1 dS_i S^-1 dS_j)``; with ``directions`` (m, l, l),
+    complex, the direction parameters' columns are those of moving mode ``r``'s direction by
+    ``directions[r, j]`` per unit of its parameter ``j`` instead (the fit's own: ``(I - u u^T)_j /
+    |v|``).
 
     Every ``dS_i`` has the form ``X Y^H + Y X^H`` (a column of ``V`` or of a Cholesky factor
     changing); with ``S = L L^H`` the whitened ``A_i = L^-1 dS_i L^-H`` give ``J = Re(A^H A)``.
@@ -345,7 +372,8 @@ def _fisher(p, mod: _Model):
     # matrix (a quarter of the complex one's arithmetic)
     dd_df, dd_dz = _response_derivatives(q, f, z, z0)
     dd_df, dd_dz = dd_df * (f0 * z0)[None, :], dd_dz * z[None, :]     # in the parameters p_f, p_z
-    du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]     # (m, a, j)
+    du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None] if directions is None \
+        else np.asarray(directions)                                                   # (m, j, a)
     yn = np.eye(l)[tl[1]] * np.where(tl[0] == tl[1], 0.5, 1.0)[:, None] if mod.signed_background \
         else ln[:, tl[1]].T
     r = compiled("_information_rows")(
@@ -356,10 +384,7 @@ def _fisher(p, mod: _Model):
         np.ascontiguousarray(yn, dtype=complex).reshape(tl[0].size, l), 0.5 * mod.log_w, bool(mod.slope), white[0])
     if mod.weight is not None:   # a block's information is its bins' (its spectrum is theirs)
         r *= np.repeat(np.sqrt(mod.weight), l * l)[:, None]
-    jm = r.T @ r
-    if mod.slope:
-        jm[-1, -1] += 1.0 / SLOPE_PRIOR_SD ** 2     # the slope's prior
-    return jm
+    return r
 
 
 def _input_level(p, mod: _Model, derivative: int, direction_scale):

@@ -1,0 +1,162 @@
+"""Complex directions (issue 14, session 27): the score test of complex directions against the real
+ones the refinement fits (:func:`oma.output_only._ml_inference._complex_directions`). Its score and
+information are the Whittle likelihood's own, checked against finite differences of a likelihood
+written out here; on records of real modes the statistic is chi-squared and nothing is named; on a
+gyroscopic pair (complex modes, ``M x'' + (C + G) x' + K x = f`` with ``G`` skew) it is far out.
+Records from ``tests/frequency_domain_records.py`` (nothing of robomill's simulator)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from frequency_domain_records import gyroscopic_pair, modal_superposition, physical_modes, physical_superposition
+from scipy import stats
+
+from oma.output_only._ml_inference import _complex_directions
+from oma.output_only.identify import COMPLEX_MIN, COMPLEX_P, identify_output_only
+from oma.output_only.whittle import _bin_scores, _information_factor, _Model, _nll, _spectrum, _unpack
+from oma.record import Channel, Record
+from oma.synthetic import paper_like_cut, paper_like_tool
+
+FS = 1000.0
+
+
+def _group(rng, k=400, imaginary: float = 0.0):
+    """A two-mode group's model (constant background, input slope) on bins around 20-23 Hz, its
+    parameters (real directions), and data drawn from its spectrum; with ``imaginary``, mode 0's
+    direction in the data is ``u_0 + i b``, ``b`` orthogonal to ``u_0`` and ``|b| = imaginary``."""
+    w = 2 * np.pi * np.linspace(16.0, 27.0, k)
+    gain = w ** 4
+    mod = _Model(2, 3, w, gain / gain.mean(), np.zeros((k, 3, 0), dtype=complex), True,
+                 (np.array([20.0, 23.0]), np.array([0.03, 0.03])), slope=True)
+    lc = np.tril(0.3 * rng.standard_normal((2, 2))) + 2 * np.eye(2)     # input variances about 4
+    ln = np.tril(0.1 * rng.standard_normal((3, 3))) + 0.3 * np.eye(3)
+    p = np.concatenate([0.3 * rng.standard_normal(2), np.log([0.03, 0.03]), rng.standard_normal(6),
+                        lc[np.tril_indices(2)], ln[np.tril_indices(3)], [0.2]])
+    u = _unpack(p, mod).u[0]
+    b = imaginary * np.linalg.svd(np.eye(3) - np.outer(u, u))[2][0]
+    chol = np.linalg.cholesky(_spectra_with(p, mod, 0, 1j * b) if imaginary else _spectrum(p, mod)[-1])
+    x = (chol @ ((rng.standard_normal((k, 3)) + 1j * rng.standard_normal((k, 3))) / np.sqrt(2))[..., None])[..., 0]
+    return mod, p, x
+
+
+def _spectra_with(p, mod, r, dv):
+    """The model spectrum (K, l, l) written out, mode ``r``'s direction moved by the complex ``dv``
+    (``S = gain V C V^H + N``, ``V_r = u_r / d_r``)."""
+    pp = _unpack(p, mod)
+    q = mod.w[:, None] / (2 * np.pi * pp.f[None, :])
+    d = (1.0 - q ** 2 + 2j * pp.z[None, :] * q) / (2 * mod.ref[1][None, :])
+    u = pp.u.astype(complex)
+    u[r] = u[r] + dv
+    v = u.T[None, :, :] / d[:, None, :]
+    gain = mod.gain * np.exp(pp.beta * mod.log_w)
+    return gain[:, None, None] * (v @ pp.c @ np.conj(np.swapaxes(v, 1, 2))) + pp.n[None]
+
+
+def _nll_written_out(s, x):
+    return float(np.sum(np.log(np.real(np.linalg.det(s))))
+                 + np.sum(np.real(np.einsum("ka,kab,kb->k", x.conj(), np.linalg.inv(s), x))))
+
+
+def test_the_complex_directions_score_and_information_are_the_likelihoods():
+    """At real directions: the score of an imaginary direction (from the bins' ``b / d``) is the
+    derivative of the written-out likelihood, and its information (:func:`_information_factor` with
+    imaginary direction columns) is ``Re sum tr(S^-1 dS_i S^-1 dS_j)`` with ``dS`` by differences."""
+    mod, p, x = _group(np.random.default_rng(3))
+    base = _spectra_with(p, mod, 0, 0.0)
+    prior = 0.5 * (_unpack(p, mod).beta / 0.5) ** 2
+    assert _nll_written_out(base, x) + prior == pytest.approx(_nll(p, mod, x)[0], rel=1e-10)
+    _, _, b_over_d = _bin_scores(p, mod, x)
+    pp = _unpack(p, mod)
+    directions = np.zeros((2, 3, 3), dtype=complex)
+    h = 1e-6
+    dss = []
+    for r in range(2):
+        basis = np.linalg.svd(np.eye(3) - np.outer(pp.u[r], pp.u[r]))[2][:2]
+        directions[r, :2] = 1j * basis
+        for e in basis:
+            score = 2.0 * np.real(np.sum(b_over_d[:, r] @ (1j * e)))
+            up, down = (_spectra_with(p, mod, r, s * 1j * h * e) for s in (1, -1))
+            numeric = (_nll_written_out(up, x) - _nll_written_out(down, x)) / (2 * h)
+            assert score == pytest.approx(numeric, rel=1e-5, abs=1e-6 * np.abs(numeric).max())
+            dss.append((up - down) / (2 * h))
+    r_imag = _information_factor(p, mod, directions)[:, 4:10][:, [0, 1, 3, 4]]
+    sinv = np.linalg.inv(base)
+    expected = np.array([[np.real(np.sum(np.einsum("kab,kbc,kcd,kda->k", sinv, a, sinv, b))) for b in dss]
+                         for a in dss])
+    np.testing.assert_allclose(r_imag.T @ r_imag, expected, rtol=1e-6, atol=1e-8 * np.abs(expected).max())
+
+
+def test_at_the_models_own_parameters_the_statistic_is_chi_squared():
+    """Data drawn from a real-direction model, tested at the true parameters (no fit: the score of
+    every fitted parameter is noise too, which the efficient score takes out): over 40 draws the
+    statistic's mean is its 2 degrees of freedom within the sampling error, and its upper tail
+    that of chi-squared."""
+    rng = np.random.default_rng(5)
+    values = []
+    for _ in range(40):
+        mod, p, x = _group(rng)
+        out = _complex_directions(p, mod, x, np.ones(3))
+        assert np.all(out[1] == 2)
+        values += list(out[0])
+    values = np.array(values)
+    # 80 values of chi-squared(2): mean 2, sd of the mean 2 / sqrt(80) = 0.22
+    assert abs(values.mean() - 2.0) < 0.7
+    assert np.mean(values > stats.chi2.ppf(0.9, 2)) < 0.2
+
+
+def test_a_complex_direction_in_the_data_is_found_with_its_complexity():
+    """Data whose mode 0 has the direction ``u + i b`` (``b`` orthogonal to ``u``, ``|b| = 0.35``:
+    complexity ``2 |b|^2 / (1 + |b|^2)`` = 0.218), tested at the real parameters: the statistic
+    beyond :data:`COMPLEX_P` (28.7) in every draw, the complexity read within a factor of 1.5; mode
+    1 (real, beside it: its test sees some of mode 0's phase) far below mode 0."""
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        mod, p, x = _group(rng, k=800, imaginary=0.35)
+        out = _complex_directions(p, mod, x, np.ones(3))
+        assert stats.chi2.sf(out[0, 0], 2) < COMPLEX_P
+        assert out[2, 0] == pytest.approx(2 * 0.35 ** 2 / (1 + 0.35 ** 2), rel=0.5)
+        assert out[0, 1] < out[0, 0] / 3
+
+
+def _record(y, name):
+    channels = tuple(Channel(a.lower(), "acceleration", a, "m/s2") for a in "XYZ")
+    return Record(FS, channels, y, paper_like_tool(), paper_like_cut(), name=name)
+
+
+@pytest.fixture(scope="module")
+def real_modes():
+    modes = [(10.5, 0.05, [1, 0, 0]), (24.8, 0.04, [0, 1, 0]), (10.0, 0.05, [0, 0, 1])]
+    return [identify_output_only([_record(modal_superposition(modes, FS, 20.0, seed), f"real-{seed}")])
+            for seed in range(2)]
+
+
+def test_real_modes_are_not_named_complex(real_modes):
+    """The paper's cell as real modes: every refined mode's statistic under chi-squared(2)'s 0.999
+    quantile (13.8), nothing named, the JSON's entries there."""
+    for res in real_modes:
+        c = res.modes.complex_test
+        assert np.all(c[:, 1] == 2) and np.all(c[:, 0] < stats.chi2.ppf(0.999, 2))
+        assert res.complex_modes == ()
+        out = res.to_dict()
+        assert out["complex_modes"] == []
+        assert all(set(m["complex_direction_test"]) == {"statistic", "degrees_of_freedom", "complexity"}
+                   for m in out["modes"])
+
+
+def test_a_whirling_pair_is_named_complex():
+    """The 20 / 23 Hz pair coupled gyroscopically (g = 10 /s: complexity 0.10 / 0.13), 40 s: both
+    modes named complex with a complexity read within a factor of 2, the 40 Hz mode (real) not;
+    the model untrusted with the warning; the JSON's entries."""
+    system = gyroscopic_pair(10.0)
+    ft, _, cx = physical_modes(*system)
+    res = identify_output_only([_record(physical_superposition(*system, FS, 40.0, 0), "whirl")])
+    f = res.modes.freq_hz
+    pair = [int(np.argmin(np.abs(f - ft[k]))) for k in (0, 1)]
+    assert sorted(res.complex_modes) == sorted(pair) and not res.trusted
+    for k, true_cx in zip(pair, cx[:2]):
+        assert res.modes.complex_test[k, 2] == pytest.approx(true_cx, rel=1.0)
+        assert any(w.startswith(f"mode at {f[k]:.2f} Hz: its response has a phase") for w in res.warnings)
+    entries = res.to_dict()["complex_modes"]
+    assert [e["freq_hz"] for e in entries] == [f[k] for k in res.complex_modes]
+    assert all(e["p_value"] < COMPLEX_P and e["complexity"] >= COMPLEX_MIN for e in entries)
