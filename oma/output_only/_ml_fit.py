@@ -330,4 +330,5 @@ def _orthogonalised(u):
 def _n_params(mod: _Model) -> int:
     """Free parameters of a group model (the direction's scale is not one)."""
     m, l = mod.m, mod.l
-    return 2 * m + m * (l - 1) + _free_c(mod)[0].size + (l * (l + 1) // 2 if mod.noise else 0) + int(mod.slope)
+    return (2 * m + m * (l - 1) + _free_c(mod)[0].size + (l * (l + 1) // 2 if mod.noise else 0) + int(mod.slope)
+            + (m * l if mod.complex_directions else 0))

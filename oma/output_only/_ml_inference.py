@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scipy import stats
 from scipy.linalg import eigh
 
 from ._ml_fit import _finish, _scoring, _signed, _without_mode
@@ -63,13 +64,15 @@ def _information_se(p, mod: _Model, x, u, direction_scale, derivative: int = 0) 
     jinv = np.linalg.pinv(jm, rcond=1e-12, hermitian=True)
     g = _nll(p, mod, x, per_bin=True)[1]
     sandwich = jinv @ (g.T @ g) @ jinv
-    grad_level = _input_level(p, mod, derivative, direction_scale)[1]
+    grad_level = None if mod.complex_directions else _input_level(p, mod, derivative, direction_scale)[1]
     f0, z0 = mod.ref
     norms = _unpack(p, mod).norm  # of the raw direction vectors: their length is not identified
     for cov in (jinv, sandwich):
         var = np.maximum(np.diag(cov), 0.0)
         out[0] = np.fmax(out[0], f0 * z0 * np.sqrt(var[:m]))
         out[1] = np.fmax(out[1], np.sqrt(var[m:2 * m]))
+        if mod.complex_directions:   # frequency and damping only (the direction and level are the real fit's)
+            continue
         for r in range(m):
             # the raw direction vector v's covariance through w = D v / |D v| (D the channels'
             # scale): dw/dv = (I - w w^T) D / |D v|, |D v| = |v| |D u|
@@ -81,6 +84,33 @@ def _information_se(p, mod: _Model, x, u, direction_scale, derivative: int = 0) 
             out[2, r] = np.fmax(out[2, r], np.sqrt(max(angle_var, 0.0)))
         out[3] = np.fmax(out[3], np.sqrt(np.maximum(np.einsum("ri,ij,rj->r", grad_level, cov, grad_level), 0.0)))
     return out
+
+
+#: A mode's directions are complex (a phase between the channels that real modes cannot have: a
+#: damping that is not proportional, gyroscopic coupling, or a forced response at the mode) when
+#: the score test of complex directions (``OutputOnlyModes.complex_test``) rejects the real ones
+#: at this level, the probability of a normal variable beyond 5 standard errors (as
+#: :data:`oma.output_only.identify.DRIFT_Z`; chi-squared on 2 degrees of freedom over 28.7), ...
+COMPLEX_P = 5.733e-7
+#: ... and the direction one step towards complex ones has at least this complexity (practical
+#: significance). Measured (session 27, ``bench_oma_independent.py``): 1 100 modes of 350 records
+#: of real modes (the benchmark's 7 cases x 20, the independent generator's 7 structures x 10 x 3
+#: quantities) gave statistics with a mean 0.93-0.96 times their degrees of freedom, at most 11.5,
+#: and complexities at most 0.04; whirling pairs of complexity 0.03 / 0.04 (their frequencies and
+#: damping inside their intervals in 93 and 100 % of 10 records) read 5-29 and 0.01-0.06, of
+#: complexity 0.10 / 0.13 (intervals covering 73 and 87 %) 19-39 and 0.09-0.17.
+COMPLEX_MIN = 0.05
+
+
+def _complex_named(test) -> np.ndarray:
+    """Which modes of :func:`_complex_directions`'s ``test`` (rows statistic, degrees of freedom,
+    complexity, ...) have complex directions: ``p <`` :data:`COMPLEX_P` and a complexity of at
+    least :data:`COMPLEX_MIN` (False where untested)."""
+    stat, dof, cx = (np.asarray(a, dtype=float) for a in test[:3])
+    with np.errstate(invalid="ignore"):
+        p = np.where(np.isfinite(stat), stats.chi2.sf(np.nan_to_num(stat), np.where(np.isfinite(dof), dof, 1.0)),
+                     np.nan)
+        return (p < COMPLEX_P) & (cx >= COMPLEX_MIN)
 
 
 def _complex_directions(p, mod: _Model, x, direction_scale) -> np.ndarray:
@@ -138,6 +168,23 @@ def _complex_directions(p, mod: _Model, x, direction_scale) -> np.ndarray:
         psi = np.asarray(direction_scale) * (pp.u[r] + 1j * (np.imag(basis[r, :l - 1]).T @ c))
         out[2, r] = 1.0 - abs(np.sum(psi ** 2)) / np.sum(np.abs(psi) ** 2)
     return out
+
+
+#: BFGS iterations of a group's refit with complex directions (:func:`_complex_refit`).
+COMPLEX_FIT_ITER = 60
+
+
+def _complex_refit(p, mod: _Model, x):
+    """A group's fit at ``p`` (real directions) carried on with complex ones: the imaginary parts
+    of the raw directions freed (``_Model.complex_directions``), from 0, by at most
+    :data:`COMPLEX_FIT_ITER` BFGS iterations (:func:`oma.output_only._ml_fit._finish`, started from
+    the information). Returns the parameters and model, or None where it gains nothing."""
+    mod_c = mod._replace(complex_directions=True)
+    p_c = np.concatenate([p, np.zeros(mod.m * mod.l)])
+    p_f = _finish(p_c, mod_c, x, max_iter=COMPLEX_FIT_ITER)[0]
+    if p_f is p_c or not np.all(np.isfinite(p_f)):
+        return None
+    return p_f, mod_c
 
 
 def _input_slope(p, mod: _Model, x):

@@ -23,6 +23,7 @@ from ..modal import ModalModel
 from ..record import Record
 from ..signals import constant_rows, window_slice
 from ..timefit import resolved_band_hz
+from ._ml_inference import COMPLEX_MIN, COMPLEX_P, _complex_named  # noqa: F401 (the thresholds, re-exported)
 from .background import (ANISOTROPY_LOG_SD, BackgroundLevel, background_level, consistent_up_to_colour,
                          scale_by_background)
 from .coverage import unexplained_peaks
@@ -73,20 +74,6 @@ DRIFT_Z = 5.0
 #: more than its width, so that the damping read from it is the drift's (at 15 % drift the flagged
 #: modes' differences were 1.5-1.8 half-widths).
 DRIFT_WIDTHS = 1.0
-#: A mode's directions are complex (a phase between the channels that real modes cannot have: a
-#: damping that is not proportional, gyroscopic coupling, or a forced response at the mode) when
-#: the score test of complex directions (``OutputOnlyModes.complex_test``) rejects the real ones
-#: at this level, the probability of a normal variable beyond 5 standard errors (as
-#: :data:`DRIFT_Z`; chi-squared on 2 degrees of freedom over 28.7), ...
-COMPLEX_P = 5.733e-7
-#: ... and the direction one step towards complex ones has at least this complexity (practical
-#: significance). Measured (session 27, ``bench_oma_independent.py``): 1 100 modes of 350 records
-#: of real modes (the benchmark's 7 cases x 20, the independent generator's 7 structures x 10 x 3
-#: quantities) gave statistics with a mean 0.93-0.96 times their degrees of freedom, at most 11.5,
-#: and complexities at most 0.04; whirling pairs of complexity 0.03 / 0.04 (their frequencies and
-#: damping inside their intervals in 93 and 100 % of 10 records) read 5-29 and 0.01-0.06, of
-#: complexity 0.10 / 0.13 (intervals covering 73 and 87 %) 19-39 and 0.09-0.17.
-COMPLEX_MIN = 0.05
 AXES = ("X", "Y", "Z")
 
 
@@ -465,30 +452,28 @@ def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _
     # (session 27: ``bench_oma_independent.py``'s whirling pairs)
     complex_ = _complex_directions(modes)
     for k in complex_:
-        stat, dof, cx = modes.complex_test[k]
+        stat, dof, cx, fitted = modes.complex_test[k]
+        values = ("its frequency and damping come from its group refitted with complex directions; the model's "
+                  "direction is the real fit's" if fitted == 1.0 else
+                  "its values and intervals are those of a real mode and may not hold")
         warnings.append(f"mode at {modes.freq_hz[k]:.2f} Hz: its response has a phase between the channels that a "
                         f"real mode cannot have (score test of complex directions {stat:.1f} on {dof:.0f} degrees of "
                         f"freedom, p = {stats.chi2.sf(stat, dof):.1g}; complexity about {cx:.2f}): a damping that is "
-                        "not proportional, gyroscopic coupling or a forced response at the mode; its values and "
-                        "intervals are those of a real mode and may not hold (with complexity 0.1 frequency "
-                        "intervals covered 73 % of whirling modes); the model is not trusted")
+                        f"not proportional, gyroscopic coupling or a forced response at the mode; {values}; the "
+                        "model is not trusted")
     return _Checks(unsteady, peaks, unresolved, loose, drifting, complex_, residuals, lines)
 
 
 def _complex_directions(modes: OutputOnlyModes) -> np.ndarray:
-    """The modes whose directions are complex: by :data:`COMPLEX_P`, with a complexity of at least
-    :data:`COMPLEX_MIN`."""
-    stat, dof, cx = modes.complex_test.T
-    with np.errstate(invalid="ignore"):
-        p = np.where(np.isfinite(stat), stats.chi2.sf(stat, np.where(np.isfinite(dof), dof, 1.0)), np.nan)
-        return np.flatnonzero((p < COMPLEX_P) & (cx >= COMPLEX_MIN))
+    """The modes whose directions are complex (:func:`oma.output_only._ml_inference._complex_named`)."""
+    return np.flatnonzero(_complex_named(modes.complex_test.T))
 
 
 def _complex_entry(modes: OutputOnlyModes, k: int) -> dict:
     """A named complex mode's JSON entry."""
-    stat, dof, cx = modes.complex_test[k]
+    stat, dof, cx, fitted = modes.complex_test[k]
     return {"freq_hz": float(modes.freq_hz[k]), "statistic": float(stat), "degrees_of_freedom": int(dof),
-            "p_value": float(stats.chi2.sf(stat, dof)), "complexity": float(cx)}
+            "p_value": float(stats.chi2.sf(stat, dof)), "complexity": float(cx), "complex_fit": bool(fitted == 1.0)}
 
 
 def _half_record_shift(modes: OutputOnlyModes) -> tuple[np.ndarray, np.ndarray]:

@@ -51,8 +51,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ._ml_fit import _TAIL_PARENT, _finish, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
-from ._ml_inference import (_complex_directions, _information_se, _input_slope, _missing_mode, _mode_gain,
-                            _mode_penalty, _new_mode_apart)
+from ._ml_inference import (_complex_directions, _complex_named, _complex_refit, _information_se, _input_slope,
+                            _missing_mode, _mode_gain, _mode_penalty, _new_mode_apart)
 from .blocks import block_bins, pool
 from .whittle import _fisher, _input_level, _unpack
 
@@ -306,9 +306,11 @@ def refine_modes_ml(residuals, sample_rate_hz: float, freq_hz, damping, directio
     halves : ndarray, shape (2, m + a) or None
         With ``halves``: each mode's frequency refitted on the records' first and second halves
         (NaN where not fitted).
-    complex_test : ndarray, shape (3, m + a) or None
+    complex_test : ndarray, shape (4, m + a) or None
         With ``complex_check``: the score statistic of complex directions, its degrees of freedom,
-        and the complexity one step towards complex directions gives (NaN where not fitted).
+        the complexity one step towards complex directions gives, and 1 where the frequency and
+        damping come from the group refitted with complex directions (a mode named complex), else 0
+        (NaN where not fitted).
     """
     f0 = np.asarray(freq_hz, dtype=float)
     z0 = np.asarray(damping, dtype=float)
@@ -371,7 +373,7 @@ class _Refinement:
         self.level = np.full(n, np.nan)
         self.beta, self.beta_se = np.full(n, np.nan), np.full(n, np.nan)
         self.half_f = np.full((2, n), np.nan)
-        self.complex_check, self.complex = complex_check, np.full((3, n), np.nan)
+        self.complex_check, self.complex = complex_check, np.full((4, n), np.nan)
         self.gapped, self.halved = [], []
         self.dropped = np.zeros(n, dtype=bool)
         self.duplicated = np.zeros(n, dtype=bool)
@@ -604,7 +606,7 @@ class _Refinement:
         self.level = np.append(self.level, np.nan)
         self.beta, self.beta_se = np.append(self.beta, np.nan), np.append(self.beta_se, np.nan)
         self.half_f = np.column_stack([self.half_f, np.full(2, np.nan)])
-        self.complex = np.column_stack([self.complex, np.full(3, np.nan)])
+        self.complex = np.column_stack([self.complex, np.full(4, np.nan)])
         if self.reps is not None:
             self.reps = np.concatenate([self.reps, np.full((3, self.reps.shape[1], 1), np.nan)], axis=2)
 
@@ -639,7 +641,7 @@ class _Refinement:
         if slopes and mod.slope:
             self.beta[g], self.beta_se[g] = _input_slope(px, mod, bins.x)
         if self.complex_check:
-            self.complex[:, g] = _complex_directions(px, mod, bins.x, self.dscale * scale)
+            self.complex_directions(g, px, mod, u, bins)
         if not (self.gapped or self.halved):
             return
         # the information is the expected one (it depends on the parameters, not the data): every
@@ -660,6 +662,25 @@ class _Refinement:
             refit = self._refit(px, mod, jm, sp, band, bins, finish=True)
             if refit is not None and np.all(np.abs(refit[0] - f) <= self.hw[g] / 2):
                 self.half_f[h, g] = refit[0]
+
+    def complex_directions(self, g, px, mod, u, bins: _Bins):
+        """The group's test of complex directions at its optimum ``px``; where it names a mode
+        (:func:`oma.output_only._ml_inference._complex_named`), the group refitted with complex
+        directions gives the frequencies, damping and their errors (its directions and level stay
+        the real fit's), where that keeps every mode within its band."""
+        ds = self.dscale * bins.scale
+        test = _complex_directions(px, mod, bins.x, ds)
+        self.complex[:3, g], self.complex[3, g] = test, 0.0
+        if not np.any(_complex_named(test)):
+            return
+        refit = _complex_refit(px, mod, bins.x)
+        if refit is None:
+            return
+        fc, zc = _unpack(*refit)[:2]
+        if _within_bands((fc, zc), g, self.f0, self.hw):
+            self.f_out[g], self.z_out[g] = fc, zc
+            self.se[:2, g] = _information_se(*refit, bins.x, u, ds, self.derivative)[:2]
+            self.complex[3, g] = 1.0
 
     def _refit(self, px, mod, jm, spectra, band, bins: _Bins, *, finish: bool = False):
         """The group's model refitted to other spectra of the records (a replicate), by Fisher

@@ -107,11 +107,12 @@ class OutputOnlyModes:
         Each refined mode's frequency refitted on the first and on the second half of the records
         (``drift_check`` of :func:`output_only_modes`; NaN where not refined): a difference beyond
         their noise says the mode drifted during the cut (:mod:`oma.output_only.identify`).
-    complex_test : ndarray, shape (n_modes, 3)
+    complex_test : ndarray, shape (n_modes, 4)
         Per refined mode (``complex_check`` of :func:`output_only_modes`; NaN where not refined):
         the score statistic of complex directions against the real ones fitted, its degrees of
-        freedom (chi-squared where the mode is real) and the complexity of the direction one step
-        towards complex ones gives (0 real, 1 circular)
+        freedom (chi-squared where the mode is real), the complexity of the direction one step
+        towards complex ones gives (0 real, 1 circular), and 1 where the frequency and damping come
+        from the group refitted with complex directions, else 0
         (:func:`oma.output_only._ml_inference._complex_directions`).
     """
 
@@ -140,7 +141,7 @@ class OutputOnlyModes:
         for name in ("input_level", "input_level_log_se"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(self.freq_hz.shape, np.nan))
-        for name, width in (("half_freq_hz", 2), ("complex_test", 3)):
+        for name, width in (("half_freq_hz", 2), ("complex_test", 4)):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full((self.freq_hz.size, width), np.nan))
         for name in ("freq_hz", "damping_ratio", "freq_se_hz", "damping_se", "freq_interval_hz",
@@ -171,7 +172,7 @@ class OutputOnlyModes:
                  "direction_standard_error_deg": float(np.degrees(d)), "support": float(s),
                  "half_record_frequency_hz": [float(v) for v in h],
                  "complex_direction_test": {"statistic": float(c[0]), "degrees_of_freedom": float(c[1]),
-                                            "complexity": float(c[2])}}
+                                            "complexity": float(c[2]), "complex_fit": bool(c[3] == 1.0)}}
                 for f, z, u, fi, zi, fs, zs, s, d, h, c in zip(self.freq_hz, self.damping_ratio, self.directions,
                                                                self.freq_interval_hz, self.damping_interval,
                                                                self.freq_se_hz, self.damping_se, self.support,
@@ -339,7 +340,7 @@ class _Modes:
     input_level: np.ndarray | None = None       # the refinement's background level at the mode (None: NaN)
     input_level_se: np.ndarray | None = None    # ... and its log error
     half_freq: np.ndarray | None = None         # (2, n): refitted on the records' halves (None: NaN)
-    complex_test: np.ndarray | None = None      # (3, n): the test of complex directions (None: NaN)
+    complex_test: np.ndarray | None = None      # (4, n): the test of complex directions (None: NaN)
 
     def __post_init__(self):
         n = self.n
@@ -347,7 +348,7 @@ class _Modes:
                            ("input_level_se", np.nan)):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(n, fill))
-        for name, rows in (("half_freq", 2), ("complex_test", 3)):
+        for name, rows in (("half_freq", 2), ("complex_test", 4)):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full((rows, n), np.nan))
 
@@ -662,7 +663,7 @@ class _Refined(NamedTuple):
     levels: tuple            # the background level at the mode and its log error (NaN where not fitted)
     group: np.ndarray        # index of the fitted group
     halves: np.ndarray | None = None  # (2, n): the frequency refitted on the records' first and second halves
-    complex_test: np.ndarray | None = None  # (3, n): the test of complex directions
+    complex_test: np.ndarray | None = None  # (4, n): the test of complex directions
 
     def take(self, idx) -> "_Refined":
         return _Refined(self.freq_hz[idx], self.damping[idx], self.shapes[:, idx], self.fitted[idx],

@@ -45,7 +45,9 @@ class _Model(NamedTuple):
     :func:`oma.output_only._ml_fit._signed` only) instead of its Cholesky factor's (``N`` positive
     semi-definite), and the bins each of ``w`` stands for (``weight`` (K,): pooled blocks,
     :mod:`oma.output_only.blocks`, whose data are the roots ``X`` (K, l, l) of their summed
-    periodogram matrices; None: each ``w`` one bin, whose data are its DFT vector, (K, l))."""
+    periodogram matrices; None: each ``w`` one bin, whose data are its DFT vector, (K, l)), and
+    whether the directions are complex (``complex_directions``: the imaginary parts of the raw
+    direction vectors are the last ``m l`` parameters, after ``beta``; session 27)."""
 
     m: int
     l: int
@@ -58,6 +60,7 @@ class _Model(NamedTuple):
     slope: bool = False
     signed_background: bool = False
     weight: np.ndarray | None = None
+    complex_directions: bool = False
 
     @property
     def n_bins(self) -> int:
@@ -79,6 +82,11 @@ class _Model(NamedTuple):
     @property
     def q(self) -> int:
         return int(self.fx.shape[2])
+
+    @property
+    def slope_index(self) -> int:
+        """The index of ``beta`` in the parameters (counted from the end)."""
+        return -1 - (self.m * self.l if self.complex_directions else 0)
 
 
 class _Params(NamedTuple):
@@ -149,6 +157,9 @@ def _unpack(p, mod: _Model) -> _Params:
     ln = np.zeros((l, l)); ln[tl] = p[i:i + tl[0].size]; i += tl[0].size
     n = ln + np.tril(ln, -1).T if mod.signed_background else ln @ ln.T
     beta = float(np.clip(p[i], -MAX_SLOPE, MAX_SLOPE)) if mod.slope else 0.0
+    if mod.complex_directions:   # u = (v_re + i v_im) / |v|
+        vraw = vraw + 1j * p[p.size - m * l:].reshape(m, l)
+        norm = np.maximum(np.linalg.norm(vraw, axis=1), 1e-300)
     return _Params(f, z, vraw / norm[:, None], norm, lc, ln, lc @ lc.T, n, tm, tl, beta)
 
 
@@ -288,10 +299,20 @@ def _gradient(grad, pp: _Params, mod: _Model, q, d, bu, b_over_d, ar, gr, slope,
     dd_df, dd_dz = _response_derivatives(q, f, z, z0)
     grad[..., :m] = 2 * np.real(total(dd * dd_df)) * f0 * z0
     grad[..., m:2 * m] = 2 * np.real(total(dd * dd_dz)) * z
-    gv = 2 * np.real(b_over_d)                                            # (m, l) dL/du
-    gv = (gv - np.sum(gv * u, axis=-1, keepdims=True) * u) / norm[:, None]
     i = 2 * m + m * mod.l
-    grad[..., 2 * m:i] = gv.reshape(gv.shape[:-2] + (-1,))
+    if mod.complex_directions:
+        # u = v / |v| for complex v: moving v by dv moves the term by 2 Re(G . du), du = (dv - u Re(u^H
+        # dv)) / |v|, G = b / d: along v's real parts 2 Re G - 2 Re(G . u) Re u, its imaginary parts
+        # -2 Im G - 2 Re(G . u) Im u
+        gu = 2 * np.real(np.sum(b_over_d * u, axis=-1, keepdims=True))
+        g_re = (2 * np.real(b_over_d) - gu * np.real(u)) / norm[:, None]
+        g_im = (-2 * np.imag(b_over_d) - gu * np.imag(u)) / norm[:, None]
+        grad[..., 2 * m:i] = g_re.reshape(g_re.shape[:-2] + (-1,))
+        grad[..., grad.shape[-1] - m * mod.l:] = g_im.reshape(g_im.shape[:-2] + (-1,))
+    else:
+        gv = 2 * np.real(b_over_d)                                        # (m, l) dL/du
+        gv = (gv - np.sum(gv * u, axis=-1, keepdims=True) * u) / norm[:, None]
+        grad[..., 2 * m:i] = gv.reshape(gv.shape[:-2] + (-1,))
     ar = 0.5 * (ar + np.swapaxes(ar, -1, -2))
     grad[..., i:i + tm[0].size] = (2 * ar @ lc)[..., tm[0], tm[1]]
     if mod.noise:
@@ -301,7 +322,7 @@ def _gradient(grad, pp: _Params, mod: _Model, q, d, bu, b_over_d, ar, gr, slope,
             else (2 * gr @ ln)[..., tl[0], tl[1]]
         grad[..., i + tm[0].size:i + tm[0].size + tl[0].size] = gn
     if mod.slope:   # dS/dbeta = log(w / w_c) gain V C V^H
-        grad[..., -1] = slope if abs(pp.beta) < MAX_SLOPE else 0.0
+        grad[..., mod.slope_index] = slope if abs(pp.beta) < MAX_SLOPE else 0.0
     return grad
 
 
@@ -324,7 +345,7 @@ def _nll_sum(p, mod: _Model, x):
     grad = _gradient(np.zeros_like(p), pp, mod, q, d, bu, gv, ar, gr, slope, lambda t: np.sum(t, axis=0))
     if mod.slope:   # the prior 0.5 (beta / sd)^2
         val += 0.5 * (pp.beta / SLOPE_PRIOR_SD) ** 2
-        grad[-1] += pp.beta / SLOPE_PRIOR_SD ** 2
+        grad[mod.slope_index] += pp.beta / SLOPE_PRIOR_SD ** 2
     return val, grad
 
 
@@ -335,9 +356,15 @@ def _fisher(p, mod: _Model):
     r = _information_factor(p, mod)
     if r is None:
         return None
+    if mod.complex_directions:   # the imaginary parts' columns, after the others
+        m, l = mod.m, mod.l
+        pp = _unpack(p, mod)
+        # dv along v's imaginary part j: du = (i e_j - u Im u_j) / |v|
+        du = (1j * np.eye(l)[None] - np.imag(pp.u)[:, :, None] * pp.u[:, None, :]) / pp.norm[:, None, None]
+        r = np.hstack([r, _information_factor(p, mod, du)[:, 2 * m:2 * m + m * l]])
     jm = r.T @ r
     if mod.slope:
-        jm[-1, -1] += 1.0 / SLOPE_PRIOR_SD ** 2     # the slope's prior
+        jm[mod.slope_index, mod.slope_index] += 1.0 / SLOPE_PRIOR_SD ** 2     # the slope's prior
     return jm
 
 
@@ -372,8 +399,12 @@ def _information_factor(p, mod: _Model, directions=None):
     # matrix (a quarter of the complex one's arithmetic)
     dd_df, dd_dz = _response_derivatives(q, f, z, z0)
     dd_df, dd_dz = dd_df * (f0 * z0)[None, :], dd_dz * z[None, :]     # in the parameters p_f, p_z
-    du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None] if directions is None \
-        else np.asarray(directions)                                                   # (m, j, a)
+    if directions is not None:
+        du = np.asarray(directions)                                                   # (m, j, a)
+    elif mod.complex_directions:   # dv along v's real part j: du = (e_j - u Re u_j) / |v|
+        du = (np.eye(l)[None] - np.real(u)[:, :, None] * u[:, None, :]) / norm[:, None, None]
+    else:
+        du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (m, j, a)
     yn = np.eye(l)[tl[1]] * np.where(tl[0] == tl[1], 0.5, 1.0)[:, None] if mod.signed_background \
         else ln[:, tl[1]].T
     r = compiled("_information_rows")(
