@@ -178,13 +178,14 @@ def _complex_refit(p, mod: _Model, x):
     """A group's fit at ``p`` (real directions) carried on with complex ones: the imaginary parts
     of the raw directions freed (``_Model.complex_directions``), from 0, by at most
     :data:`COMPLEX_FIT_ITER` BFGS iterations (:func:`oma.output_only._ml_fit._finish`, started from
-    the information). Returns the parameters and model, or None where it gains nothing."""
+    the information). Returns the parameters, the model and ``-log L``, or None where it gains
+    nothing."""
     mod_c = mod._replace(complex_directions=True)
     p_c = np.concatenate([p, np.zeros(mod.m * mod.l)])
-    p_f = _finish(p_c, mod_c, x, max_iter=COMPLEX_FIT_ITER)[0]
+    p_f, val = _finish(p_c, mod_c, x, max_iter=COMPLEX_FIT_ITER)[:2]
     if p_f is p_c or not np.all(np.isfinite(p_f)):
         return None
-    return p_f, mod_c
+    return p_f, mod_c, val
 
 
 def _input_slope(p, mod: _Model, x):

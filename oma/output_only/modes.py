@@ -29,7 +29,8 @@ from ..signals import integrate_frequency_domain
 from .coverage import SEGMENT_S, unexplained_peaks
 from .harmonics import HARMONIC_MAX_DAMPING, HARMONIC_TOLERANCE, at_milling_line, remove_response_harmonics
 from .ml import LEFT_DAMPING, band_groups, refine_modes_ml
-from .ssi import StabilisedModes, mac, match_modes, same_mode, segment_correlations, select_modes, ssi_poles
+from .ssi import (StabilisedModes, mac, match_modes, real_direction, same_mode, segment_correlations, select_modes,
+                  ssi_poles)
 from .uncertainty import jackknife, segment_bounds, t_interval
 
 __all__ = ["OutputOnlyModes", "output_only_modes", "real_direction"]
@@ -56,16 +57,6 @@ SEED_MIN_DAMPING = 0.005
 #: Modes of different SSI views (``ssi_derivatives``) whose bands ``f (1 +- w zeta)`` overlap
 #: compete as one group (:func:`_choose_views`).
 VIEW_GROUP_WIDTH = 3.0
-
-
-def real_direction(shape) -> np.ndarray:
-    """Real unit direction of a complex mode shape: rotated to be as real as possible, largest
-    component positive."""
-    phi = np.asarray(shape, dtype=complex)
-    alpha = 0.5 * np.angle(np.sum(phi ** 2))
-    u = np.real(phi * np.exp(-1j * alpha))
-    u = u / max(np.linalg.norm(u), np.finfo(float).tiny)
-    return u if u[np.argmax(np.abs(u))] >= 0 else -u
 
 
 @dataclass(frozen=True)

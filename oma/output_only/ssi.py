@@ -118,6 +118,16 @@ def mac(a, b) -> np.ndarray:
     return num / np.maximum(den, np.finfo(float).tiny)
 
 
+def real_direction(shape) -> np.ndarray:
+    """Real unit direction of a complex mode shape: rotated to be as real as possible, largest
+    component positive."""
+    phi = np.asarray(shape, dtype=complex)
+    alpha = 0.5 * np.angle(np.sum(phi ** 2))
+    u = np.real(phi * np.exp(-1j * alpha))
+    u = u / max(np.linalg.norm(u), np.finfo(float).tiny)
+    return u if u[np.argmax(np.abs(u))] >= 0 else -u
+
+
 def same_mode(freq_hz, shape, other_freq_hz, other_shapes) -> np.ndarray:
     """Whether each of the ``other`` modes (frequencies (n,), shapes (l, n)) is the mode
     (``freq_hz``, ``shape`` (l,)) seen twice: within 2 % of its frequency and MAC above 0.9."""

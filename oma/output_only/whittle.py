@@ -443,7 +443,7 @@ def _input_level(p, mod: _Model, derivative: int, direction_scale):
     m, l = mod.m, mod.l
     d = np.asarray(direction_scale, dtype=float)
     du = pp.u * d[None, :]
-    n2 = np.sum(du ** 2, axis=1)
+    n2 = np.sum(np.abs(du) ** 2, axis=1)
     crr = np.diag(pp.c)[:m]
     w2d = mod.w ** (2 * int(derivative))
     level = n2 * crr * (2.0 * mod.ref[1]) ** 2 / np.mean(w2d)
@@ -454,6 +454,8 @@ def _input_level(p, mod: _Model, derivative: int, direction_scale):
         # C_rr = sum_j lc[r, j]^2 over row r of the Cholesky factor
         row = np.flatnonzero(tm[0] == r)
         grad[r, i0 + row] = 2.0 * pp.lc[r, tm[1][row]] / crr[r]
+        if mod.complex_directions:   # the direction's part not derived (no error is drawn from it)
+            continue
         # |D u|^2, u = v / |v|: d log|D u|^2 / dv = (I - u u^T) 2 D^2 u / (|v| |D u|^2)
         u = pp.u[r]
         grad[r, 2 * m + r * l:2 * m + (r + 1) * l] = (np.eye(l) - np.outer(u, u)) @ (2.0 * d ** 2 * u) / (
@@ -461,7 +463,7 @@ def _input_level(p, mod: _Model, derivative: int, direction_scale):
     if mod.slope:
         log_wr = np.log(2 * np.pi * pp.f / mod.w_c)
         level = level * np.exp(pp.beta * log_wr)
-        grad[:, -1] = log_wr if abs(pp.beta) < MAX_SLOPE else 0.0
+        grad[:, mod.slope_index] = log_wr if abs(pp.beta) < MAX_SLOPE else 0.0
         # d (beta log f_r) / d p_f = beta f0 zeta0 / f_r
         grad[np.arange(m), np.arange(m)] += pp.beta * mod.ref[0] * mod.ref[1] / pp.f
     return level, grad
