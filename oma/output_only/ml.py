@@ -469,7 +469,11 @@ class _Refinement:
             if chain is None or not g.size:
                 return
         if not _within_bands(chain[1], g, self.f0, self.hw):
-            complex_fit = self.complex_instead(g, chain[1], bins) if self.complex_check else None
+            # a fit the phase between the channels defeats is carried on with complex directions
+            # (session 27: a strong whirl's 23.75 Hz mode, taken to 22 Hz at 12-15 % and dropped,
+            # came back to 23.74-23.76 Hz at 2.5-3.2 %, truth 3.0 %); the elimination and the scan,
+            # which take real directions, are not run again
+            complex_fit = self.complex_fit(g, chain[1], bins) if self.complex_check else None
             if complex_fit is not None:
                 self.store(g, complex_fit, band, bins, slopes)
                 return
@@ -536,18 +540,14 @@ class _Refinement:
             fits, fit = chain
         return g, ug, chain
 
-    def complex_instead(self, g, fit, bins: _Bins):
-        """A group whose real-direction fit took modes out of their bands, where the test at that
-        fit names a mode complex (:func:`oma.output_only._ml_inference._complex_named`): the fit
-        carried on with complex directions, taken (a fit tuple, its model's directions complex)
-        when it brings every mode back into its band; else None. Session 27: a pair whirling
-        with complexity 0.28 / 0.35 (``bench_oma_independent.py``'s ``gyro_20``), whose real fit
-        took SSI's 23.75 Hz mode to 22 Hz at 12-15 % damping (then dropped, and a false mode
-        added by the scan), refitted so came back to 23.74-23.87 Hz at 2.3-3.2 % (truth 23.75 Hz,
-        3.0 %). The group's elimination and scan, which take real directions, are not run
-        again."""
+    def complex_fit(self, g, fit, bins: _Bins):
+        """The test of complex directions at the group's ``fit`` (real directions) into
+        ``complex``; where it names a mode (:func:`oma.output_only._ml_inference._complex_named`),
+        the group carried on with complex directions (a fit tuple, its model's directions complex)
+        when that keeps or brings every mode within its band; else None."""
         px, mod = fit[4], fit[5]
         test = _complex_directions(px, mod, bins.x, self.dscale * bins.scale)
+        self.complex[:3, g], self.complex[3, g] = test, 0.0
         if not np.any(_complex_named(test)):
             return None
         refit = _complex_refit(px, mod, bins.x)
@@ -557,7 +557,7 @@ class _Refinement:
         f, z, u = _unpack(pc, modc)[:3]
         if not _within_bands((f, z), g, self.f0, self.hw):
             return None
-        self.complex[:3, g], self.complex[3, g] = test, 1.0
+        self.complex[3, g] = 1.0
         return f, z, u, val, pc, modc
 
     def without_left(self, g, ug, bins: _Bins, chain):
@@ -663,7 +663,7 @@ class _Refinement:
         self.f_out[g], self.z_out[g] = f, z
         self.ok[g] = True
         for j, k in enumerate(g):
-            # a fit with complex directions (:meth:`complex_instead`) reports their real directions
+            # a fit with complex directions (:meth:`complex_fit`) reports their real directions
             v = u[j] * scale
             uk = real_direction(v) if mod.complex_directions else v / np.linalg.norm(v)
             self.u_out[:, k] = uk if uk @ self.u0[:, k] >= 0 else -uk
@@ -672,7 +672,13 @@ class _Refinement:
         if slopes and mod.slope and not mod.complex_directions:
             self.beta[g], self.beta_se[g] = _input_slope(px, mod, bins.x)
         if self.complex_check and not mod.complex_directions:
-            self.complex_directions(g, px, mod, u, bins)
+            # a mode named complex: the frequencies, damping and errors of the group carried on
+            # with complex directions (its directions and level stay the real fit's)
+            complex_fit = self.complex_fit(g, fit, bins)
+            if complex_fit is not None:
+                self.f_out[g], self.z_out[g] = complex_fit[:2]
+                self.se[:2, g] = _information_se(*complex_fit[4:6], bins.x, u, self.dscale * scale,
+                                                 self.derivative)[:2]
         if not (self.gapped or self.halved):
             return
         # the information is the expected one (it depends on the parameters, not the data): every
@@ -693,26 +699,6 @@ class _Refinement:
             refit = self._refit(px, mod, jm, sp, band, bins, finish=True)
             if refit is not None and np.all(np.abs(refit[0] - f) <= self.hw[g] / 2):
                 self.half_f[h, g] = refit[0]
-
-    def complex_directions(self, g, px, mod, u, bins: _Bins):
-        """The group's test of complex directions at its optimum ``px``; where it names a mode
-        (:func:`oma.output_only._ml_inference._complex_named`), the group refitted with complex
-        directions gives the frequencies, damping and their errors (its directions and level stay
-        the real fit's), where that keeps every mode within its band."""
-        ds = self.dscale * bins.scale
-        test = _complex_directions(px, mod, bins.x, ds)
-        self.complex[:3, g], self.complex[3, g] = test, 0.0
-        if not np.any(_complex_named(test)):
-            return
-        refit = _complex_refit(px, mod, bins.x)
-        if refit is None:
-            return
-        pc, modc = refit[:2]
-        fc, zc = _unpack(pc, modc)[:2]
-        if _within_bands((fc, zc), g, self.f0, self.hw):
-            self.f_out[g], self.z_out[g] = fc, zc
-            self.se[:2, g] = _information_se(pc, modc, bins.x, u, ds, self.derivative)[:2]
-            self.complex[3, g] = 1.0
 
     def _refit(self, px, mod, jm, spectra, band, bins: _Bins, *, finish: bool = False):
         """The group's model refitted to other spectra of the records (a replicate), by Fisher
