@@ -149,10 +149,12 @@ def _record(y, name):
     return Record(FS, channels, y, paper_like_tool(), paper_like_cut(), name=name)
 
 
+REAL_MODES = [(10.5, 0.05, [1, 0, 0]), (24.8, 0.04, [0, 1, 0]), (10.0, 0.05, [0, 0, 1])]
+
+
 @pytest.fixture(scope="module")
 def real_modes():
-    modes = [(10.5, 0.05, [1, 0, 0]), (24.8, 0.04, [0, 1, 0]), (10.0, 0.05, [0, 0, 1])]
-    return [identify_output_only([_record(modal_superposition(modes, FS, 20.0, seed), f"real-{seed}")])
+    return [identify_output_only([_record(modal_superposition(REAL_MODES, FS, 20.0, seed), f"real-{seed}")])
             for seed in range(2)]
 
 
@@ -167,6 +169,17 @@ def test_real_modes_are_not_named_complex(real_modes):
         assert out["complex_modes"] == []
         assert all(set(m["complex_direction_test"]) == {"statistic", "degrees_of_freedom", "complexity", "complex_fit"}
                    for m in out["modes"])
+
+
+def test_where_nothing_is_named_the_check_changes_no_value(real_modes):
+    """The same record of real modes identified without the check: every frequency, damping, error
+    and direction the same bit for bit (no group is refitted where no mode is named)."""
+    res = real_modes[0]
+    plain = identify_output_only([_record(modal_superposition(REAL_MODES, FS, 20.0, 0), "real-0")],
+                                 complex_check=False)
+    for name in ("freq_hz", "damping_ratio", "freq_se_hz", "damping_se", "directions", "input_level"):
+        np.testing.assert_array_equal(getattr(res.modes, name), getattr(plain.modes, name))
+    assert np.all(np.isnan(plain.modes.complex_test))
 
 
 def test_a_whirling_pair_is_named_complex_and_refitted():
