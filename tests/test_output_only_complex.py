@@ -183,38 +183,45 @@ def test_where_nothing_is_named_the_check_changes_no_value(real_modes):
 
 
 def test_a_whirling_pair_is_named_complex_and_refitted():
-    """The 20 / 23 Hz pair coupled gyroscopically (g = 10 /s: complexity 0.10 / 0.13), 40 s: both
-    modes named complex with a complexity read within a factor of 2, the 40 Hz mode (real) not;
-    their frequency and damping from the refit with complex directions, the truth inside their
-    intervals, and the damping nearer the truth than the real-direction fit's (same record,
-    ``complex_check=False``: 3.69 / 3.63 % against 3.00 %); the model untrusted with the warning;
-    the JSON's entries."""
+    """The 20 / 23 Hz pair coupled gyroscopically (g = 10 /s: complexity 0.10 / 0.13), three 40 s
+    records: both modes named complex in each, with a complexity read within a factor of 2, the
+    40 Hz mode (real) not; their frequency and damping from the fit with complex directions, whose
+    intervals hold more of the truths than the real-direction fit's (``complex_check=False`` on the
+    same records: 9 of 12 intervals) and whose damping is nearer the truth in total; each model
+    untrusted with the warning; the JSON's entries."""
     system = gyroscopic_pair(10.0)
     ft, zt, cx = physical_modes(*system)
-    rec = _record(physical_superposition(*system, FS, 40.0, 0), "whirl")
-    res = identify_output_only([rec])
-    real = identify_output_only([rec], complex_check=False).modes
-    m = res.modes
-    pair = [int(np.argmin(np.abs(m.freq_hz - ft[k]))) for k in (0, 1)]
-    assert sorted(res.complex_modes) == sorted(pair) and not res.trusted
-    for k, f_true, z_true, cx_true in zip(pair, ft, zt, cx):
-        assert m.complex_test[k, 2] == pytest.approx(cx_true, rel=1.0) and m.complex_test[k, 3] == 1.0
-        assert m.freq_interval_hz[k, 0] <= f_true <= m.freq_interval_hz[k, 1]
-        assert m.damping_interval[k, 0] <= z_true <= m.damping_interval[k, 1]
-        assert any(w.startswith(f"mode at {m.freq_hz[k]:.2f} Hz: its response has a phase") and "refitted with complex"
-                   in w for w in res.warnings)
-    k_real = [int(np.argmin(np.abs(real.freq_hz - ft[k]))) for k in (0, 1)]
-    assert np.sum(np.abs(m.damping_ratio[pair] - zt[:2])) < 0.6 * np.sum(np.abs(real.damping_ratio[k_real] - zt[:2]))
-    entries = res.to_dict()["complex_modes"]
-    assert [e["freq_hz"] for e in entries] == [m.freq_hz[k] for k in res.complex_modes]
-    assert all(e["p_value"] < COMPLEX_P and e["complexity"] >= COMPLEX_MIN and e["complex_fit"] for e in entries)
+    held = {True: 0, False: 0}
+    error = {True: 0.0, False: 0.0}
+    for seed in range(3):
+        rec = _record(physical_superposition(*system, FS, 40.0, seed), "whirl")
+        for check in (True, False):
+            res = identify_output_only([rec], complex_check=check)
+            m = res.modes
+            pair = [int(np.argmin(np.abs(m.freq_hz - ft[k]))) for k in (0, 1)]
+            for k, f_true, z_true in zip(pair, ft, zt):
+                held[check] += int(m.freq_interval_hz[k, 0] <= f_true <= m.freq_interval_hz[k, 1])
+                held[check] += int(m.damping_interval[k, 0] <= z_true <= m.damping_interval[k, 1])
+                error[check] += abs(m.damping_ratio[k] - z_true)
+            if not check:
+                continue
+            assert sorted(res.complex_modes) == sorted(pair) and not res.trusted
+            for k, cx_true in zip(pair, cx):
+                assert m.complex_test[k, 2] == pytest.approx(cx_true, rel=1.0) and m.complex_test[k, 3] == 1.0
+                assert any(w.startswith(f"mode at {m.freq_hz[k]:.2f} Hz: its response has a phase")
+                           and "refitted with complex" in w for w in res.warnings)
+            entries = res.to_dict()["complex_modes"]
+            assert [e["freq_hz"] for e in entries] == [m.freq_hz[k] for k in res.complex_modes]
+            assert all(e["p_value"] < COMPLEX_P and e["complexity"] >= COMPLEX_MIN and e["complex_fit"]
+                       for e in entries)
+    assert held[True] > held[False] and error[True] < error[False]
 
 
 def test_a_strong_whirl_the_real_fit_loses_is_kept_by_the_complex_fit():
     """The pair at g = 20 /s (complexity 0.28 / 0.35), 20 s, seed 0: the real-direction fit takes
-    SSI's 23.75 Hz mode to 22 Hz at 15 % damping (before session 27's refit it was dropped and the
-    scan added a false mode at 22.2 Hz); the test names the group at that fit and the group carried
-    on with complex directions keeps both modes, each within 1 % and its damping within 30 % of the
+    SSI's 23.75 Hz mode to 22 Hz at 15 % damping (before session 27 it was dropped and the scan
+    added a false mode at 22.2 Hz); the test names the group at that fit, and the group carried on
+    with complex directions keeps both modes, each within 1 % and its damping within 30 % of the
     truth, and no other mode below 35 Hz."""
     system = gyroscopic_pair(20.0)
     ft, zt, _ = physical_modes(*system)

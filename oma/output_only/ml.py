@@ -471,8 +471,10 @@ class _Refinement:
         if not _within_bands(chain[1], g, self.f0, self.hw):
             # a fit the phase between the channels defeats is carried on with complex directions
             # (session 27: a strong whirl's 23.75 Hz mode, taken to 22 Hz at 12-15 % and dropped,
-            # came back to 23.74-23.76 Hz at 2.5-3.2 %, truth 3.0 %); the elimination and the scan,
-            # which take real directions, are not run again
+            # came back to 23.74-23.76 Hz at 2.5-3.2 %, truth 3.0 %); the scan, which takes real
+            # directions, is not run for it. Only here: a group's fit before the scan may lack a
+            # mode SSI missed, which its test reads as a phase (an independent record of the Hurco
+            # kind, its 357 Hz mode not yet found, read 43 and 52 at its neighbours)
             complex_fit = self.complex_fit(g, chain[1], bins) if self.complex_check else None
             if complex_fit is not None:
                 self.store(g, complex_fit, band, bins, slopes)
