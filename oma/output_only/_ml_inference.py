@@ -71,7 +71,7 @@ def _information_se(p, mod: _Model, x, u, direction_scale, derivative: int = 0) 
         var = np.maximum(np.diag(cov), 0.0)
         out[0] = np.fmax(out[0], f0 * z0 * np.sqrt(var[:m]))
         out[1] = np.fmax(out[1], np.sqrt(var[m:2 * m]))
-        if mod.complex_directions:   # frequency and damping only (the direction and level are the real fit's)
+        if mod.complex_directions:   # frequency and damping only: no direction or level error is drawn
             continue
         for r in range(m):
             # the raw direction vector v's covariance through w = D v / |D v| (D the channels'

@@ -382,7 +382,7 @@ class _Checks(NamedTuple):
     unresolved: list        # modes whose band holds a second shape
     loose: np.ndarray       # indices of modes whose direction the record does not pin
     drifting: np.ndarray    # indices of modes whose frequency moved between the records' halves
-    complex: np.ndarray     # indices of modes whose directions are complex (beyond their errors)
+    complex: np.ndarray     # indices of modes whose directions are complex
     residuals: list
     lines: np.ndarray
 
@@ -390,7 +390,7 @@ class _Checks(NamedTuple):
 def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _Checks:
     """The checks of the modes that decide trust, each with its warning: unsteady milling lines,
     tones, residual peaks no mode explains, modes that hold two, directions the record does not
-    pin, modes that drifted during the cut."""
+    pin, modes that drifted during the cut, modes whose directions are complex."""
     unsteady = [h for h in modes.harmonics if not h.steady]
     for r, h in zip(records, modes.harmonics):
         st = h.steadiness
@@ -454,7 +454,7 @@ def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _
     for k in complex_:
         stat, dof, cx, fitted = modes.complex_test[k]
         values = ("its frequency and damping come from its group refitted with complex directions; the model's "
-                  "direction is the real fit's" if fitted == 1.0 else
+                  "direction is a real one" if fitted == 1.0 else
                   "its values and intervals are those of a real mode and may not hold")
         warnings.append(f"mode at {modes.freq_hz[k]:.2f} Hz: its response has a phase between the channels that a "
                         f"real mode cannot have (score test of complex directions {stat:.1f} on {dof:.0f} degrees of "

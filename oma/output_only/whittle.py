@@ -300,19 +300,15 @@ def _gradient(grad, pp: _Params, mod: _Model, q, d, bu, b_over_d, ar, gr, slope,
     grad[..., :m] = 2 * np.real(total(dd * dd_df)) * f0 * z0
     grad[..., m:2 * m] = 2 * np.real(total(dd * dd_dz)) * z
     i = 2 * m + m * mod.l
+    # u = v / |v|: moving v by dv moves the term by 2 Re(G . du), du = (dv - u Re(u^H dv)) / |v|,
+    # G = b / d: along v's real parts 2 Re G - 2 Re(G . u) Re u (for real u the projection
+    # (I - u u^T) of 2 Re G), along its imaginary parts (complex directions) -2 Im G - 2 Re(G . u) Im u
+    gu = 2 * np.real(np.sum(b_over_d * u, axis=-1, keepdims=True))
+    g_re = (2 * np.real(b_over_d) - gu * np.real(u)) / norm[:, None]
+    grad[..., 2 * m:i] = g_re.reshape(g_re.shape[:-2] + (-1,))
     if mod.complex_directions:
-        # u = v / |v| for complex v: moving v by dv moves the term by 2 Re(G . du), du = (dv - u Re(u^H
-        # dv)) / |v|, G = b / d: along v's real parts 2 Re G - 2 Re(G . u) Re u, its imaginary parts
-        # -2 Im G - 2 Re(G . u) Im u
-        gu = 2 * np.real(np.sum(b_over_d * u, axis=-1, keepdims=True))
-        g_re = (2 * np.real(b_over_d) - gu * np.real(u)) / norm[:, None]
         g_im = (-2 * np.imag(b_over_d) - gu * np.imag(u)) / norm[:, None]
-        grad[..., 2 * m:i] = g_re.reshape(g_re.shape[:-2] + (-1,))
         grad[..., grad.shape[-1] - m * mod.l:] = g_im.reshape(g_im.shape[:-2] + (-1,))
-    else:
-        gv = 2 * np.real(b_over_d)                                        # (m, l) dL/du
-        gv = (gv - np.sum(gv * u, axis=-1, keepdims=True) * u) / norm[:, None]
-        grad[..., 2 * m:i] = gv.reshape(gv.shape[:-2] + (-1,))
     ar = 0.5 * (ar + np.swapaxes(ar, -1, -2))
     grad[..., i:i + tm[0].size] = (2 * ar @ lc)[..., tm[0], tm[1]]
     if mod.noise:
@@ -399,12 +395,10 @@ def _information_factor(p, mod: _Model, directions=None):
     # matrix (a quarter of the complex one's arithmetic)
     dd_df, dd_dz = _response_derivatives(q, f, z, z0)
     dd_df, dd_dz = dd_df * (f0 * z0)[None, :], dd_dz * z[None, :]     # in the parameters p_f, p_z
-    if directions is not None:
-        du = np.asarray(directions)                                                   # (m, j, a)
-    elif mod.complex_directions:   # dv along v's real part j: du = (e_j - u Re u_j) / |v|
-        du = (np.eye(l)[None] - np.real(u)[:, :, None] * u[:, None, :]) / norm[:, None, None]
-    else:
-        du = (np.eye(l)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # (m, j, a)
+    # (m, j, a): dv along v's real part j moves u by du = (e_j - u Re u_j) / |v| (for real u the
+    # projection (I - u u^T) / |v|)
+    du = (np.eye(l)[None] - np.real(u)[:, :, None] * u[:, None, :]) / norm[:, None, None] if directions is None \
+        else np.asarray(directions)
     yn = np.eye(l)[tl[1]] * np.where(tl[0] == tl[1], 0.5, 1.0)[:, None] if mod.signed_background \
         else ln[:, tl[1]].T
     r = compiled("_information_rows")(
