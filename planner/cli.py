@@ -291,14 +291,15 @@ def _cmd_plan(args) -> int:
                       else (None, None))  # a model with x_posterior: the chance constraint
     with naming_files(args.setup):
         result = plan(setup, model, method=args.method, stability_limit=limit)
-    if args.output:
-        fig, _ = result.plot()
-        save_figure(fig, args.output)
     payload = result.to_dict()
     if learned is not None:
         if result.success:
-            verify_plan(limit, learned, payload["spindle_rpm"], payload["axial_depth_m"])
+            verify_plan(limit, learned, payload["spindle_rpm"], payload["axial_depth_m"], model_path=args.model,
+                        cut=setup.cut)
         payload["learned"] = learned
+    if args.output:  # last: the posterior's cuts, read above, may be malformed
+        fig, _ = result.plot()
+        save_figure(fig, args.output)
 
     def human(p):
         if not p["success"]:
@@ -315,6 +316,10 @@ def _cmd_plan(args) -> int:
             text += (f"\nP(stable) of the planned cut, {check['samples']} posterior samples solved directly: "
                      f"{check['probability_stable']:.3f} +- {check['standard_error']:.3f} (the limit table: "
                      f"{check['table_probability_stable']:.3f})")
+        support = learned_.get("support")
+        if support:
+            text += (f"\ntest cuts within {100 * support['speed_tolerance']:g} % of its speed: {support['status']}"
+                     + (f" (cut {', '.join(map(str, support['backed_by']))})" if support["status"] == "backed" else ""))
         return "\n".join([text] + [f"warning: {w}" for w in learned_.get("warnings", [])])
 
     emit(args, payload, human)

@@ -11,8 +11,8 @@ import yaml
 from oma.modal_io import read_modal_model, write_modal_model
 from planner.cli import main
 from planner.learn.outcomes_io import CutTable, CutsError, detect_outcome, read_cuts, record_outcome
-from planner.learn.likelihood import Likelihood
-from planner.learn.posterior_io import read_posterior
+from planner.learn.likelihood import UNCERTAIN, Likelihood
+from planner.learn.posterior_io import read_posterior, read_posterior_cuts
 from planner.learn.synthetic import label, random_cuts, record_labels, tool_problem, true_limits
 from stability.setup_io import write_setup
 
@@ -81,6 +81,13 @@ def test_learn_writes_a_posterior_that_reads_back(files, capsys, suggest_for):
     np.testing.assert_allclose(post.reference.natural_frequency_hz, problem.prior.natural_frequency_hz)
     np.testing.assert_allclose(post.model_at(post.samples[0])[0].natural_frequency_hz, model.natural_frequency_hz)
     assert read_posterior(d / "prior.yaml") is None
+    # ... with the cuts it was learned from, in the table's order (``plan`` compares its cut with them)
+    back = read_posterior_cuts(d / "post.yaml")
+    table = read_cuts(d / "cuts.csv", tool=problem.setup.tool)
+    assert back.n_cuts == table.n_cuts == 11 and back.outcome[-1] == UNCERTAIN
+    for k in ("spindle_rpm", "axial_depth_m", "radial_depth_m", "down", "outcome", "weight"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(table, k))
+    assert read_posterior_cuts(d / "prior.yaml") is None
     assert (d / "lobes.png").stat().st_size > 1000
 
 

@@ -245,7 +245,8 @@ def _cmd_learn(args) -> int:
         fig, _ = lobes.plot(cuts=cuts)
         save_figure(fig, args.plot)
     if args.output:
-        payload["posterior"] = str(write_posterior_model(post, args.output))
+        # with the cuts, which ``plan`` compares its cut with (:mod:`.support`)
+        payload["posterior"] = str(write_posterior_model(post, args.output, cuts=cuts.take(cuts.outcome >= 0)))
     timings["total"] = time.perf_counter() - started
     emit(args, payload, lambda d: _human(d, result))
     return EXIT_OK
@@ -284,9 +285,15 @@ def _human(d, result) -> str:
 
 
 # ------------------------------------------------------------- used by `plan` and `lobes` (planner.cli)
-def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float) -> None:
+def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float, *, model_path=None, cut=None) -> None:
     """For ``plan``: the planned cut's P(stable) from posterior samples solved directly at its speed
-    (``learned['check']``) and a warning when it falls short of the level."""
+    (``learned['check']``) and a warning when it falls short of the level; with the posterior file
+    ``model_path`` and the setup's ``cut`` (radial depth, milling), what the test cuts the posterior
+    was learned from say about the plan (``learned['support']``, :mod:`.support`; None when the
+    file does not carry them) and a warning unless one of them backs it."""
+    from .posterior_io import read_posterior_cuts
+    from .support import plan_support, support_warning
+
     check = limit.verify(rpm, axial_depth_m)
     learned["check"] = check
     if not check["holds"]:
@@ -294,6 +301,19 @@ def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float) -> None:
             f"the planned cut is stable with P = {check['probability_stable']:.3f} (+- {check['standard_error']:.3f}) "
             f"when {check['samples']} posterior samples are solved directly at {rpm:.0f} rpm, below the level "
             f"{limit.probability:g} the limit table gave: plan a lower depth or check the cut")
+    if model_path is None or cut is None:
+        return
+    tests = read_posterior_cuts(model_path)
+    learned["support"] = None if tests is None else plan_support(tests, rpm, axial_depth_m, cut.radial_depth_m,
+                                                                  cut.milling == "down")
+    if tests is None:
+        learned.setdefault("warnings", []).append(
+            "the posterior file does not carry the test cuts it was learned from (written by an earlier robomill): "
+            "whether a test cut backs the plan is not known")
+        return
+    text = support_warning(learned["support"], tests, rpm, axial_depth_m)
+    if text:
+        learned.setdefault("warnings", []).append(text)
 
 
 def chance_constraint(model_path, setup, *, probability: float = 0.95):

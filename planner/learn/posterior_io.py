@@ -20,12 +20,18 @@ of modal models reads it (they ignore ``x_`` keys). Beside it::
       map_coefficients: {Ktc_N_m2: ..., Krc_N_m2: ...}
       samples: [[u_f, u_k, u_zeta, u_Ktc, u_Krc], ...]   # log-multipliers, equally weighted,
                                                           # the MAP sample first
+      cuts:                          # the test cuts learned from (optional; since session 28),
+        - {spindle_rpm: ..., axial_depth_m: ..., radial_depth_m: ..., milling: down,
+           outcome: stable, weight: 1.0}      # the label's weight (a detected outcome's confidence)
 
-:func:`read_posterior` gives the samples back (``None`` for a model without them).
+:func:`read_posterior` gives the samples back (``None`` for a model without them),
+:func:`read_posterior_cuts` the cuts (``plan`` compares its cut with them:
+:mod:`planner.learn.support`).
 """
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import replace
@@ -40,9 +46,11 @@ from oma.io import atomic_write
 from oma.modal_io import modal_model_to_dict, read_modal_model
 
 from .likelihood import Likelihood
+from .outcomes_io import OUTCOMES, CutTable
 from .posterior import PARAMETERS, Posterior
 
-__all__ = ["write_posterior_model", "read_posterior", "POSTERIOR_FORMAT", "MAX_WRITTEN_SAMPLES"]
+__all__ = ["write_posterior_model", "read_posterior", "read_posterior_cuts", "POSTERIOR_FORMAT",
+           "MAX_WRITTEN_SAMPLES"]
 
 POSTERIOR_FORMAT = "robomill-posterior/1"
 #: Samples written beside the MAP model at most (a random subset, the MAP first): 500 x 5 numbers
@@ -50,8 +58,10 @@ POSTERIOR_FORMAT = "robomill-posterior/1"
 MAX_WRITTEN_SAMPLES = 500
 
 
-def posterior_to_dict(posterior: Posterior, *, max_samples: int = MAX_WRITTEN_SAMPLES) -> dict:
-    """The ``robomill-modal/1`` mapping of the MAP model with ``x_posterior`` beside it."""
+def posterior_to_dict(posterior: Posterior, *, max_samples: int = MAX_WRITTEN_SAMPLES,
+                      cuts: CutTable | None = None) -> dict:
+    """The ``robomill-modal/1`` mapping of the MAP model with ``x_posterior`` beside it (and the
+    test ``cuts`` learned from, when given)."""
     post = posterior.thinned(max_samples)
     model, coef = posterior.map_model()
     ref = posterior.reference
@@ -66,13 +76,16 @@ def posterior_to_dict(posterior: Posterior, *, max_samples: int = MAX_WRITTEN_SA
         "map_coefficients": {"Ktc_N_m2": coef.Ktc_N_m2, "Krc_N_m2": coef.Krc_N_m2},
         "samples": post.samples,
     }
+    if cuts is not None:
+        doc["x_posterior"]["cuts"] = [{**cuts.row(i), "weight": float(cuts.weight[i])} for i in range(cuts.n_cuts)]
     return doc
 
 
-def write_posterior_model(posterior: Posterior, path, *, max_samples: int = MAX_WRITTEN_SAMPLES) -> Path:
-    """Write the MAP model with the posterior samples (atomically)."""
+def write_posterior_model(posterior: Posterior, path, *, max_samples: int = MAX_WRITTEN_SAMPLES,
+                          cuts: CutTable | None = None) -> Path:
+    """Write the MAP model with the posterior samples (and the test ``cuts``) atomically."""
     target = Path(os.fspath(path))
-    text = dump_yaml(posterior_to_dict(posterior, max_samples=max_samples))
+    text = dump_yaml(posterior_to_dict(posterior, max_samples=max_samples, cuts=cuts))
     with atomic_write(target) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return target
@@ -132,3 +145,46 @@ def read_posterior(path) -> Posterior | None:
     mark[0] = 0.0  # the writer puts the MAP sample first
     return Posterior(reference=reference, coefficients=coef, prior_log_sd=sd, samples=samples,
                      log_posterior=mark, likelihood=likelihood, method=method, mode_spread=spread)
+
+
+def read_posterior_cuts(path) -> CutTable | None:
+    """The test cuts a posterior was learned from (``x_posterior.cuts``); ``None`` for a model
+    without them (written before session 28, or not by ``learn``).
+
+    Raises
+    ------
+    ModelError
+        ``x_posterior.cuts`` is malformed.
+    """
+    node = load_yaml(path, error=ModelError).mapping.get("x_posterior")
+    rows = node.get("cuts") if isinstance(node, Mapping) else None
+    if rows is None:
+        return None
+    if not isinstance(rows, list) or not rows:
+        raise ModelError(path, "x_posterior.cuts", "a list of cuts", repr(rows)[:60])
+    cols = {k: [] for k in ("spindle_rpm", "axial_depth_m", "radial_depth_m", "weight")}
+    down, outcome = [], []
+    for i, row in enumerate(rows):
+        where = f"x_posterior.cuts[{i}]"
+        if not isinstance(row, Mapping):
+            raise ModelError(path, where, "a mapping", repr(row)[:60])
+        for k, v in cols.items():
+            try:
+                x = float(row.get(k, 1.0 if k == "weight" else None))
+            except (TypeError, ValueError):
+                x = math.nan
+            if not (math.isfinite(x) and x >= 0 and (x > 0 or k == "weight")):
+                raise ModelError(path, f"{where}.{k}", "a positive number" if k != "weight" else "a weight >= 0",
+                                 repr(row.get(k))[:60])
+            v.append(x)
+        if row.get("milling") not in ("up", "down"):
+            raise ModelError(path, f"{where}.milling", "up or down", repr(row.get("milling"))[:60])
+        if row.get("outcome") not in OUTCOMES:
+            raise ModelError(path, f"{where}.outcome", " or ".join(OUTCOMES), repr(row.get("outcome"))[:60])
+        down.append(row["milling"] == "down")
+        outcome.append(OUTCOMES[row["outcome"]])
+    n = len(rows)
+    # the feed is not compared with the plan (the stability limit does not depend on it)
+    return CutTable(np.array(cols["spindle_rpm"]), np.array(cols["axial_depth_m"]), np.array(cols["radial_depth_m"]),
+                    np.array(down), np.array(outcome), np.array(cols["weight"]), np.full(n, np.nan),
+                    np.zeros(n, dtype=bool))
