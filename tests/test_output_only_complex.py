@@ -13,7 +13,7 @@ from frequency_domain_records import gyroscopic_pair, modal_superposition, physi
 from scipy import stats
 
 from oma.output_only._ml_inference import _complex_directions
-from oma.output_only.identify import COMPLEX_MIN, COMPLEX_P, identify_output_only
+from oma.output_only.identify import COMPLEX_MIN, COMPLEX_P, COMPLEX_RESCUE_P, identify_output_only
 from oma.output_only.whittle import (SLOPE_PRIOR_SD, _bin_scores, _fisher, _information_factor, _Model, _nll, _spectrum,
                                      _unpack)
 from oma.record import Channel, Record
@@ -217,19 +217,44 @@ def test_a_whirling_pair_is_named_complex_and_refitted():
     assert held[True] > held[False] and error[True] < error[False]
 
 
-def test_a_strong_whirl_the_real_fit_loses_is_kept_by_the_complex_fit():
-    """The pair at g = 20 /s (complexity 0.28 / 0.35), 20 s, seed 0: the real-direction fit takes
-    SSI's 23.75 Hz mode to 22 Hz at 15 % damping (before session 27 it was dropped and the scan
-    added a false mode at 22.2 Hz); the test names the group at that fit, and the group carried on
+@pytest.mark.parametrize("seed", [0, 1, 9])
+def test_a_strong_whirl_the_real_fit_loses_is_kept_by_the_complex_fit(seed):
+    """The pair at g = 20 /s (complexity 0.28 / 0.35), 20 s: the real-direction fit takes SSI's
+    23.75 Hz mode to 21-22 Hz at 7-15 % damping (before session 27 it was dropped and the scan added
+    a false mode at 21.5-22.2 Hz); the test at that fit names the group, and the group carried on
     with complex directions keeps both modes, each within 1 % and its damping within 30 % of the
-    truth, and no other mode below 35 Hz."""
+    truth, and no other mode below 35 Hz, named complex. Seed 0's statistic (34.1) passes
+    ``COMPLEX_P``; seeds 1 and 9 read 21.1 and 24.1 there, under it and over ``COMPLEX_RESCUE_P``
+    (session 28: before, their 23.75 Hz mode was lost)."""
     system = gyroscopic_pair(20.0)
     ft, zt, _ = physical_modes(*system)
-    res = identify_output_only([_record(physical_superposition(*system, FS, 20.0, 0), "strong whirl")])
+    res = identify_output_only([_record(physical_superposition(*system, FS, 20.0, seed), "strong whirl")])
     m = res.modes
     low = np.flatnonzero(m.freq_hz < 35.0)
     assert low.size == 2
     for k, f_true, z_true in zip(low, ft, zt):
         assert abs(m.freq_hz[k] / f_true - 1) < 0.01 and abs(m.damping_ratio[k] / z_true - 1) < 0.3
         assert m.complex_test[k, 3] == 1.0
-    assert not res.trusted
+    p = stats.chi2.sf(m.complex_test[low, 0], m.complex_test[low, 1])
+    assert (np.min(p) < COMPLEX_P) == (seed == 0) and np.min(p) < COMPLEX_RESCUE_P
+    assert set(res.complex_modes) & set(low.tolist()) and not res.trusted
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+def test_the_scan_adds_no_real_mode_where_complex_directions_explain_the_band_better(seed):
+    """The strong whirl at 40 s, seeds 1 and 4: the group's real-direction fit stays in its bands,
+    so it is not carried on with complex directions before the scan, and the scan found a third
+    mode to mimic the phase (before session 28: 21.02 Hz at 5 % and 19.28 Hz beside 19.29 Hz, each
+    gaining more than its penalty). Against the group with complex directions on the same bins,
+    whose BIC is lower, it is not added: the two modes, each within 1 % of the truth, named
+    complex."""
+    system = gyroscopic_pair(20.0)
+    ft, zt, _ = physical_modes(*system)
+    res = identify_output_only([_record(physical_superposition(*system, FS, 40.0, seed), "strong whirl 40 s")])
+    m = res.modes
+    low = np.flatnonzero(m.freq_hz < 35.0)
+    assert low.size == 2
+    for k, f_true in zip(low, ft):
+        assert abs(m.freq_hz[k] / f_true - 1) < 0.01
+    assert set(low.tolist()) <= set(res.complex_modes)
+    assert not any("found by the refinement's scan" in w for w in res.warnings)

@@ -23,7 +23,8 @@ from ..modal import ModalModel
 from ..record import Record
 from ..signals import constant_rows, window_slice
 from ..timefit import resolved_band_hz
-from ._ml_inference import COMPLEX_MIN, COMPLEX_P, _complex_named  # noqa: F401 (the thresholds, re-exported)
+from ._ml_inference import (COMPLEX_MIN, COMPLEX_P, COMPLEX_RESCUE_P,  # noqa: F401 (the thresholds, re-exported)
+                            _complex_named)
 from .background import (ANISOTROPY_LOG_SD, BackgroundLevel, background_level, consistent_up_to_colour,
                          scale_by_background)
 from .coverage import unexplained_peaks
@@ -118,7 +119,8 @@ class OutputOnlyIdentification:
         :data:`DRIFT_WIDTHS`); any leaves the model untrusted.
     complex_modes : tuple of int
         Modes whose directions the score test finds complex (:data:`COMPLEX_P`,
-        :data:`COMPLEX_MIN`); any leaves the model untrusted.
+        :data:`COMPLEX_MIN`), and those refitted with complex directions where the real fit had
+        taken a mode out of its band (:data:`COMPLEX_RESCUE_P`); any leaves the model untrusted.
     directions_source : str
         Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
         ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_directions`, and
@@ -465,8 +467,11 @@ def _checked(records, modes: OutputOnlyModes, fs, axes, quantity, warnings) -> _
 
 
 def _complex_directions(modes: OutputOnlyModes) -> np.ndarray:
-    """The modes whose directions are complex (:func:`oma.output_only._ml_inference._complex_named`)."""
-    return np.flatnonzero(_complex_named(modes.complex_test.T))
+    """The modes whose directions are complex (:func:`oma.output_only._ml_inference._complex_named`),
+    and those named at :data:`COMPLEX_RESCUE_P` whose group was carried on with complex directions
+    (where its real fit took a mode out of its band)."""
+    test = modes.complex_test.T
+    return np.flatnonzero(_complex_named(test) | ((test[3] == 1.0) & _complex_named(test, COMPLEX_RESCUE_P)))
 
 
 def _complex_entry(modes: OutputOnlyModes, k: int) -> dict:

@@ -51,8 +51,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ._ml_fit import _TAIL_PARENT, _finish, _fit_group, _known_tails, _n_params, _orthogonalised, _scoring
-from ._ml_inference import (_complex_directions, _complex_named, _complex_refit, _information_se, _input_slope,
-                            _missing_mode, _mode_gain, _mode_penalty, _new_mode_apart)
+from ._ml_inference import (COMPLEX_P, COMPLEX_RESCUE_P, _complex_directions, _complex_named, _complex_refit,
+                            _information_se, _input_slope, _missing_mode, _mode_gain, _mode_penalty, _new_mode_apart)
 from .blocks import block_bins, pool
 from .ssi import real_direction
 from .whittle import _fisher, _input_level, _unpack
@@ -474,8 +474,10 @@ class _Refinement:
             # came back to 23.74-23.76 Hz at 2.5-3.2 %, truth 3.0 %); the scan, which takes real
             # directions, is not run for it. Only here: a group's fit before the scan may lack a
             # mode SSI missed, which its test reads as a phase (an independent record of the Hurco
-            # kind, its 357 Hz mode not yet found, read 43 and 52 at its neighbours)
-            complex_fit = self.complex_fit(g, chain[1], bins) if self.complex_check else None
+            # kind, its 357 Hz mode not yet found, read 43 and 52 at its neighbours). At the looser
+            # level COMPLEX_RESCUE_P: the choice here is to drop a mode or keep it (session 28)
+            complex_fit = (self.complex_fit(g, chain[1], bins, level=COMPLEX_RESCUE_P) if self.complex_check
+                           else None)
             if complex_fit is not None:
                 self.store(g, complex_fit, band, bins, slopes)
                 return
@@ -542,15 +544,16 @@ class _Refinement:
             fits, fit = chain
         return g, ug, chain
 
-    def complex_fit(self, g, fit, bins: _Bins):
+    def complex_fit(self, g, fit, bins: _Bins, *, level: float = COMPLEX_P):
         """The test of complex directions at the group's ``fit`` (real directions) into
-        ``complex``; where it names a mode (:func:`oma.output_only._ml_inference._complex_named`),
-        the group carried on with complex directions (a fit tuple, its model's directions complex)
-        when that keeps or brings every mode within its band; else None."""
+        ``complex``; where it names a mode at ``level``
+        (:func:`oma.output_only._ml_inference._complex_named`), the group carried on with complex
+        directions (a fit tuple, its model's directions complex) when that keeps or brings every
+        mode within its band; else None."""
         px, mod = fit[4], fit[5]
         test = _complex_directions(px, mod, bins.x, self.dscale * bins.scale)
         self.complex[:3, g], self.complex[3, g] = test, 0.0
-        if not np.any(_complex_named(test)):
+        if not np.any(_complex_named(test, level)):
             return None
         refit = _complex_refit(px, mod, bins.x)
         if refit is None:
@@ -618,13 +621,37 @@ class _Refinement:
             penalty = _mode_penalty(fit_c[5])
             gain = _mode_gain(fits_c, fit_c, g_c.size - 1, bins_c.x, penalty=penalty)
         apart = chain_c is not None and _new_mode_apart(fit_c, g_c, self.f0, self.z0, self.lines)
-        if gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, self.f0, self.hw):
+        if (gain is not None and apart and gain > penalty and _within_bands(fit_c, g_c, self.f0, self.hw)
+                and not (self.complex_check and self.phase_rather(g, bins_c, ug_c[:, :-1], fit_c))):
             self._add(gid)
             if evidence is not None:
                 evidence[int(self.f0.size - 1)] = (gain, penalty)
             return g_c, band_c, bins_c, chain_c
         self.f0, self.z0, self.u0, self.hw = self.f0[:-1], self.z0[:-1], self.u0[:, :-1], self.hw[:-1]
         return g, band, bins, chain
+
+    def phase_rather(self, g, bins: _Bins, ug, fit_c) -> bool:
+        """Whether the group ``g`` with complex directions explains the scan's bins better than the
+        group with the scan's candidate (``fit_c``, real directions): the group without the
+        candidate fitted on the same bins, its test naming a mode, its complex refit within the
+        bands, and its BIC (``-log L`` plus half the parameters times the log of the bins, as
+        :meth:`chain` chooses) lower. A second real mode is what a real-direction model adds to
+        mimic a whirl's phase (session 27: at 40 s, 2 of 10 strong-whirl records kept one at 21.0
+        and 19.3 Hz beside the whirling pair)."""
+        chain = self.chain(g, bins, ug, gone=[self.f0.size - 1])
+        if chain is None:
+            return False
+        px, mod = chain[1][4], chain[1][5]
+        if not np.any(_complex_named(_complex_directions(px, mod, bins.x, self.dscale * bins.scale))):
+            return False
+        refit = _complex_refit(px, mod, bins.x)
+        if refit is None or not _within_bands(_unpack(refit[0], refit[1])[:2], g, self.f0, self.hw):
+            return False
+
+        def bic(nll, model):
+            return nll + 0.5 * _n_params(model) * np.log(model.n_bins)
+
+        return bic(refit[2], refit[1]) < bic(fit_c[3], fit_c[5])
 
     def _add(self, gid):
         """The results grown by the candidate the scan added to the group ``gid`` (the last start)."""
