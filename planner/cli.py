@@ -55,7 +55,12 @@ def _cmd_lobes(args) -> int:
                            rpm_range=rpm_range(args, setup), method=args.method, n_rpm=args.n_rpm)
     learned = posterior_lobes(args.model, setup, rpm_range(args, setup)) if args.model else None  # x_posterior
     if args.output:
-        fig, _ = (learned or diagram).plot()
+        if learned is not None:  # with the test cuts the posterior was learned from, where its file has them
+            from planner.learn.posterior_io import read_posterior_cuts
+
+            fig, _ = learned.plot(cuts=read_posterior_cuts(args.model[0]))
+        else:
+            fig, _ = diagram.plot()
         save_figure(fig, args.output)
     payload = diagram.to_dict()
     if learned is not None:

@@ -162,3 +162,24 @@ def test_malformed_cuts_in_a_posterior_file_are_a_one_line_error_and_nothing_is_
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "x_posterior.cuts[2].milling" in err
     assert not (tmp_path / "plan.png").exists()
+
+
+def test_lobes_of_a_posterior_draw_its_test_cuts_at_the_setups_engagement(planned, capsys, tmp_path, monkeypatch):
+    """``lobes --model POSTERIOR -o FIG``: the probability lobes with the test cuts the file carries,
+    those at the setup's engagement only (here slotting, down milling: two of the three)."""
+    import planner.cli as cli
+
+    d, _, _ = planned
+    drawn = {}
+    monkeypatch.setattr(cli, "save_figure", lambda fig, path: drawn.update(fig=fig, path=path))
+    code = main(["lobes", str(d / "setup.yaml"), "--model", str(d / "far.yaml"), "-o", str(tmp_path / "l.png"),
+                 "--rpm", "6000", "12000", "--json"])
+    capsys.readouterr()
+    assert code == 0
+    ax = drawn["fig"].axes[0]
+    labels = ax.get_legend_handles_labels()[1]
+    assert "test cut: stable" in labels and "test cut: chatter" in labels
+    from matplotlib.collections import PathCollection
+
+    points = np.vstack([c.get_offsets() for c in ax.collections if isinstance(c, PathCollection)])
+    assert sorted(map(tuple, np.round(points, 3))) == [(6000.0, 1.0), (6500.0, 9.0)]
