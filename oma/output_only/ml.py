@@ -350,6 +350,12 @@ class _Bins(NamedTuple):
     blocks: object
 
 
+def _bic(nll: float, mod) -> float:
+    """The BIC of a group's fit, halved: ``-log L`` plus half its parameters times the log of its
+    bins (how the tail models are chosen, and a scan's candidate against complex directions)."""
+    return nll + 0.5 * _n_params(mod) * np.log(mod.n_bins)
+
+
 class _Refinement:
     """One :func:`refine_modes_ml` call: the starting modes (``f0``, ``z0``, ``u0``, each band's
     half-width ``hw``; the scan's candidates are appended while judged), the records' spectra, and
@@ -452,7 +458,7 @@ class _Refinement:
         # the tail model with the smallest BIC (its n the bins, pooled or not); the constant
         # background no candidate where the known tails were fitted (:data:`KNOWN_TAILS_ALWAYS`)
         cands = [ft for ft in fits if not (KNOWN_TAILS_ALWAYS and ft[5].q == 0 and "known" in by_kind)] or fits
-        return fits, min(cands, key=lambda ft: ft[3] + 0.5 * _n_params(ft[5]) * np.log(ft[5].n_bins))
+        return fits, min(cands, key=lambda ft: _bic(ft[3], ft[5]))
 
     def refine(self, g, *, evidence, add_missing, band_hz, slopes: bool):
         """Refine the group of starting modes ``g`` (module docstring; :func:`refine_modes_ml`)."""
@@ -648,11 +654,7 @@ class _Refinement:
         refit = _complex_refit(px, mod, bins.x)
         if refit is None or not _within_bands(_unpack(refit[0], refit[1])[:2], g, self.f0, self.hw):
             return False
-
-        def bic(nll, model):
-            return nll + 0.5 * _n_params(model) * np.log(model.n_bins)
-
-        return bic(refit[2], refit[1]) < bic(fit_c[3], fit_c[5])
+        return _bic(refit[2], refit[1]) < _bic(fit_c[3], fit_c[5])
 
     def _add(self, gid):
         """The results grown by the candidate the scan added to the group ``gid`` (the last start)."""
