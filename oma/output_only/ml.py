@@ -644,8 +644,8 @@ class _Refinement:
         :meth:`chain` chooses). A second real mode is what a real-direction model adds to mimic a
         whirl's phase (session 27: at 40 s, 2 of 10 strong-whirl records kept one at 21.0 and
         19.3 Hz beside the whirling pair). Not gated by the test of complex directions: the BIC
-        decides (session 28: in 2 whirling records of 6 whose test read 11-31, under its level,
-        the complex model's BIC was lower by 135-187; the candidates of real modes that the scan
+        decides (session 28: at three candidates in 2 whirling records of 6 whose test was not
+        named, at most 11.2-31.4, the complex model's BIC was lower by 135-187; the candidates of real modes that the scan
         adds in records of real modes had the lower BIC by 66-908)."""
         chain = self.chain(g, bins, ug, gone=[self.f0.size - 1])
         if chain is None:
