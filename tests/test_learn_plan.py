@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from learn_cases import slotting_posterior
 
 from oma.modal_io import write_modal_model
 from planner.cli import main
@@ -14,9 +15,7 @@ from planner.learn.posterior import Posterior, PriorSD
 from planner.learn.posterior_io import read_posterior, write_posterior_model
 from planner.learn.outcomes_io import CutTable
 from planner.learn.predictive import ChanceLimit, depth_at_probability, predict_cuts
-from planner.learn.synthetic import tool_problem
 from planner.learn.tables import reference_limits, scaled_coefficients, scaled_model
-from stability.setup import Limits
 from stability.setup_io import write_setup
 
 
@@ -25,15 +24,7 @@ def case(tmp_path_factory):
     """A posterior whose samples are drawn around the prior (frequency and stiffness free), the
     setup slotting (ZOA learned) in a 9-12 krpm window."""
     d = tmp_path_factory.mktemp("plan")
-    problem = tool_problem()
-    setup = replace(problem.setup, cut=replace(problem.setup.cut, radial_depth_m=problem.setup.tool.diameter_m),
-                    limits=Limits(spindle_rpm=(9000.0, 12000.0), axial_depth_m=(1e-4, 0.05),
-                                  feed_per_tooth_m=(5e-5, 1e-4), stability_margin=0.5))
-    rng = np.random.default_rng(7)
-    sd = PriorSD().log_sds() * np.array([1, 1, 0, 0, 0])
-    samples = rng.standard_normal((300, 5)) * sd * 0.3
-    post = Posterior(reference=problem.prior, coefficients=setup.material.cutting_coefficients, prior_log_sd=sd,
-                     samples=samples, log_posterior=-np.sum((samples[:, :2] / sd[:2]) ** 2, axis=1), method="zoa")
+    problem, setup, post = slotting_posterior(stability_margin=0.5)
     write_setup(setup, d / "setup.yaml")
     write_posterior_model(post, d / "post.yaml")
     write_modal_model(problem.prior, d / "prior.yaml")

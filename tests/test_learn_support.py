@@ -4,21 +4,19 @@ extrapolated (:mod:`planner.learn.support`)."""
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
+from learn_cases import slotting_posterior
 
 from oma.errors import ModelError
 from oma.modal_io import write_modal_model
 from planner.cli import main
 from planner.learn.likelihood import CHATTER, STABLE, UNCERTAIN
 from planner.learn.outcomes_io import CutTable
-from planner.learn.posterior import Posterior, PriorSD
 from planner.learn.posterior_io import read_posterior_cuts, write_posterior_model
 from planner.learn.support import SPEED_TOLERANCE, plan_support
 from planner.learn.synthetic import tool_problem, true_limits
-from stability.setup import Limits
 from stability.setup_io import write_setup
 
 D = 0.0127
@@ -96,15 +94,7 @@ def planned(tmp_path_factory):
     """A posterior around the prior (ZOA, slotting, 9-12 krpm) written with far-off cuts, and the
     cut ``plan`` makes of it."""
     d = tmp_path_factory.mktemp("support")
-    problem = tool_problem()
-    setup = replace(problem.setup, cut=replace(problem.setup.cut, radial_depth_m=D),
-                    limits=Limits(spindle_rpm=(9000.0, 12000.0), axial_depth_m=(1e-4, 0.05),
-                                  feed_per_tooth_m=(5e-5, 1e-4)))
-    rng = np.random.default_rng(7)
-    sd = PriorSD().log_sds() * np.array([1, 1, 0, 0, 0])
-    samples = rng.standard_normal((300, 5)) * sd * 0.3
-    post = Posterior(reference=problem.prior, coefficients=setup.material.cutting_coefficients, prior_log_sd=sd,
-                     samples=samples, log_posterior=-np.sum((samples[:, :2] / sd[:2]) ** 2, axis=1), method="zoa")
+    problem, setup, post = slotting_posterior()
     write_setup(setup, d / "setup.yaml")
     write_modal_model(problem.prior, d / "prior.yaml")
     far = _cuts([(6000.0, 1e-3, D, True, STABLE), (6500.0, 9e-3, D, True, CHATTER), (7000.0, 2e-3, D, False, STABLE)])
