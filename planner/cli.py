@@ -53,14 +53,10 @@ def _cmd_lobes(args) -> int:
 
     diagram = lobe_diagram(structure, setup.tool, setup.cut, coefficients(setup, args.setup),
                            rpm_range=rpm_range(args, setup), method=args.method, n_rpm=args.n_rpm)
-    learned = posterior_lobes(args.model, setup, rpm_range(args, setup)) if args.model else None  # x_posterior
+    learned, tests = (posterior_lobes(args.model, setup, rpm_range(args, setup)) if args.model
+                      else (None, None))  # x_posterior, and the test cuts its file carries
     if args.output:
-        if learned is not None:  # with the test cuts the posterior was learned from, where its file has them
-            from planner.learn.posterior_io import read_posterior_cuts
-
-            fig, _ = learned.plot(cuts=read_posterior_cuts(args.model[0]))
-        else:
-            fig, _ = diagram.plot()
+        fig, _ = diagram.plot() if learned is None else learned.plot(cuts=tests)
         save_figure(fig, args.output)
     payload = diagram.to_dict()
     if learned is not None:
@@ -288,23 +284,23 @@ def _cmd_plan(args) -> int:
     from planner.optimize import plan
     from stability.setup_io import read_setup
 
-    from planner.learn.cli import chance_constraint, verify_plan
+    from planner.learn.cli import chance_constraint, report_support, verify_plan
 
     setup = read_setup(args.setup)
     model = structure_from_args(args)
-    limit, learned = (chance_constraint(args.model, setup, probability=args.probability) if args.model
-                      else (None, None))  # a model with x_posterior: the chance constraint
+    limit, learned, tests = (chance_constraint(args.model, setup, probability=args.probability) if args.model
+                             else (None, None, None))  # a model with x_posterior: the chance constraint
     with naming_files(args.setup):
         result = plan(setup, model, method=args.method, stability_limit=limit)
+    if args.output:
+        fig, _ = result.plot()
+        save_figure(fig, args.output)
     payload = result.to_dict()
     if learned is not None:
         if result.success:
-            verify_plan(limit, learned, payload["spindle_rpm"], payload["axial_depth_m"], model_path=args.model,
-                        cut=setup.cut)
+            verify_plan(limit, learned, payload["spindle_rpm"], payload["axial_depth_m"])
+            report_support(learned, tests, setup.cut, payload["spindle_rpm"], payload["axial_depth_m"])
         payload["learned"] = learned
-    if args.output:  # last: the posterior's cuts, read above, may be malformed
-        fig, _ = result.plot()
-        save_figure(fig, args.output)
 
     def human(p):
         if not p["success"]:

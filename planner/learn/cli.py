@@ -285,15 +285,9 @@ def _human(d, result) -> str:
 
 
 # ------------------------------------------------------------- used by `plan` and `lobes` (planner.cli)
-def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float, *, model_path=None, cut=None) -> None:
+def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float) -> None:
     """For ``plan``: the planned cut's P(stable) from posterior samples solved directly at its speed
-    (``learned['check']``) and a warning when it falls short of the level; with the posterior file
-    ``model_path`` and the setup's ``cut`` (radial depth, milling), what the test cuts the posterior
-    was learned from say about the plan (``learned['support']``, :mod:`.support`; None when the
-    file does not carry them) and a warning unless one of them backs it."""
-    from .posterior_io import read_posterior_cuts
-    from .support import plan_support, support_warning
-
+    (``learned['check']``) and a warning when it falls short of the level."""
     check = limit.verify(rpm, axial_depth_m)
     learned["check"] = check
     if not check["holds"]:
@@ -301,24 +295,32 @@ def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float, *, model
             f"the planned cut is stable with P = {check['probability_stable']:.3f} (+- {check['standard_error']:.3f}) "
             f"when {check['samples']} posterior samples are solved directly at {rpm:.0f} rpm, below the level "
             f"{limit.probability:g} the limit table gave: plan a lower depth or check the cut")
-    if model_path is None or cut is None:
-        return
-    tests = read_posterior_cuts(model_path)
-    learned["support"] = None if tests is None else plan_support(tests, rpm, axial_depth_m, cut.radial_depth_m,
-                                                                  cut.milling == "down")
+
+
+def report_support(learned: dict, tests, cut, rpm: float, axial_depth_m: float) -> None:
+    """For ``plan``: what the test cuts the posterior was learned from (``tests``, from
+    :func:`chance_constraint`; None when its file does not carry them) say about the planned cut at
+    the setup's ``cut`` (radial depth, milling): ``learned['support']`` (:mod:`.support`) and a
+    warning unless one of them backs it."""
+    from .support import plan_support, support_warning
+
     if tests is None:
+        learned["support"] = None
         learned.setdefault("warnings", []).append(
             "the posterior file does not carry the test cuts it was learned from (written by an earlier robomill): "
             "whether a test cut backs the plan is not known")
         return
+    learned["support"] = plan_support(tests, rpm, axial_depth_m, cut.radial_depth_m, cut.milling == "down")
     text = support_warning(learned["support"], tests, rpm, axial_depth_m)
     if text:
         learned.setdefault("warnings", []).append(text)
 
 
 def chance_constraint(model_path, setup, *, probability: float = 0.95):
-    """For ``plan``: ``(stability_limit, learned)`` when the model carries ``x_posterior`` (the
-    depth stable with ``probability``, and what was learned, for the report), else ``(None, None)``.
+    """For ``plan``: ``(stability_limit, learned, tests)`` when the model carries ``x_posterior``
+    (the depth stable with ``probability``, what was learned, for the report, and the test cuts
+    its file carries, read before anything is computed: :func:`report_support`), else
+    ``(None, None, None)``.
 
     The limit is tabulated only over the speeds where a cut could beat the best plan
     (:func:`planner.learn.speed_range.chance_limit_for_plan`, planning on the part of the range
@@ -329,18 +331,19 @@ def chance_constraint(model_path, setup, *, probability: float = 0.95):
     from oma.modal_io import read_modal_model
     from planner.plan_results import plan_bounds
 
-    from .posterior_io import read_posterior
+    from .posterior_io import read_posterior, read_posterior_cuts
     from .speed_range import chance_limit_for_plan
 
     if not 0 < probability < 1:
         raise UsageError("--probability", "a probability in (0, 1)", repr(probability))
     post = read_posterior(model_path)
     if post is None or setup.limits.spindle_rpm is None:
-        return None, None
+        return None, None, None
     try:
         plan_bounds(setup)
     except SetupError:  # plan raises it, naming the setup file
-        return None, None
+        return None, None, None
+    tests = read_posterior_cuts(model_path)
     limit, speeds = chance_limit_for_plan(post, read_modal_model(model_path), setup, probability=probability)
     learned = {"probability": float(probability), "samples": int(post.samples.shape[0]),
                "method": post.method, "cause": post.cause(), "parameters": post.parameters(),
@@ -348,17 +351,21 @@ def chance_constraint(model_path, setup, *, probability: float = 0.95):
                "note": f"stability: P(stable) >= {probability:g} under the posterior learned from test cuts, "
                        "the forward model's error included (the chance constraint replaces the stability margin)",
                **speeds.to_dict()}
-    return limit, learned
+    return limit, learned, tests
 
 
 def posterior_lobes(model_path, setup, rpm_range):
-    """For ``lobes``: the probability lobes when the model carries ``x_posterior`` (else ``None``)."""
+    """For ``lobes``: the probability lobes and the test cuts the file carries (None without) when
+    the model carries ``x_posterior``, else ``(None, None)``."""
     from pathlib import Path
 
-    from .posterior_io import read_posterior
+    from .posterior_io import read_posterior, read_posterior_cuts
     from .predictive import probability_lobes
 
     if len(model_path) != 1 or Path(model_path[0]).suffix.lower() not in (".yaml", ".yml"):
-        return None
+        return None, None
     post = read_posterior(model_path[0])
-    return None if post is None else probability_lobes(post, setup, rpm_range)
+    if post is None:
+        return None, None
+    tests = read_posterior_cuts(model_path[0])  # read before the lobes are computed
+    return probability_lobes(post, setup, rpm_range), tests
