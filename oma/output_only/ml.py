@@ -561,15 +561,21 @@ class _Refinement:
         self.complex[:3, g], self.complex[3, g] = test, 0.0
         if not np.any(_complex_named(test, level)):
             return None
+        fit_c = self._complex_in_bands(g, px, mod, bins)
+        if fit_c is not None:
+            self.complex[3, g] = 1.0
+        return fit_c
+
+    def _complex_in_bands(self, g, px, mod, bins: _Bins):
+        """The group ``g``'s fit at ``px`` (real directions) refitted with complex directions
+        (:func:`oma.output_only._ml_inference._complex_refit`), as a fit tuple, where every mode
+        stays within its band; else None."""
         refit = _complex_refit(px, mod, bins.x)
         if refit is None:
             return None
         pc, modc, val = refit
         f, z, u = _unpack(pc, modc)[:3]
-        if not _within_bands((f, z), g, self.f0, self.hw):
-            return None
-        self.complex[3, g] = 1.0
-        return f, z, u, val, pc, modc
+        return (f, z, u, val, pc, modc) if _within_bands((f, z), g, self.f0, self.hw) else None
 
     def without_left(self, g, ug, bins: _Bins, chain):
         """The group whose fit took modes out of their bands, or to a damping no SSI pole of a mode
@@ -644,17 +650,14 @@ class _Refinement:
         :meth:`chain` chooses). A second real mode is what a real-direction model adds to mimic a
         whirl's phase (session 27: at 40 s, 2 of 10 strong-whirl records kept one at 21.0 and
         19.3 Hz beside the whirling pair). Not gated by the test of complex directions: the BIC
-        decides (session 28: at three candidates in 2 whirling records of 6 whose test was not
-        named, at most 11.2-31.4, the complex model's BIC was lower by 135-187; the candidates of real modes that the scan
-        adds in records of real modes had the lower BIC by 66-908)."""
+        decides (session 28: at three candidates in 2 whirling records of 6, whose tests named
+        nothing (at most 11.2-31.4), the complex model's BIC was lower by 135-187; the candidates
+        of real modes that the scan adds in records of real modes had the lower BIC by 66-908)."""
         chain = self.chain(g, bins, ug, gone=[self.f0.size - 1])
         if chain is None:
             return False
-        px, mod = chain[1][4], chain[1][5]
-        refit = _complex_refit(px, mod, bins.x)
-        if refit is None or not _within_bands(_unpack(refit[0], refit[1])[:2], g, self.f0, self.hw):
-            return False
-        return _bic(refit[2], refit[1]) < _bic(fit_c[3], fit_c[5])
+        fit = self._complex_in_bands(g, chain[1][4], chain[1][5], bins)
+        return fit is not None and _bic(fit[3], fit[5]) < _bic(fit_c[3], fit_c[5])
 
     def _add(self, gid):
         """The results grown by the candidate the scan added to the group ``gid`` (the last start)."""
