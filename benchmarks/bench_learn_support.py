@@ -7,13 +7,17 @@ CLI's default likelihood; the plan at P(stable) >= 0.95 over 6-24 krpm at the pr
 (0.5 D down, axial depth at most 40 mm). Then the plan is cut as a test (labelled by the truth,
 unflipped), learned again and planned again. Reported per plan: whether it is truly stable (its
 depth under the truth's limit at its speed) and its support status (``backed``, ``contradicted``,
-``extrapolated``; :func:`planner.learn.support.plan_support`).
+``extrapolated``; :func:`planner.learn.support.plan_support`). Where it is not backed, the best cut
+the stable test cuts prove (:func:`planner.learn.support.best_backed`, session 29): its speed, depth,
+true stability and share of the plan's removal rate, with the posterior's doubt about the marks
+and (``alt*``) taking every stable mark at face value.
 
 Truths: ``exact`` (the model's family: one mode), ``two`` (a mode the prior lacks: the tool has
 modes at 700 Hz along x and 900 Hz along y, the prior the benchmark's one mode), ``extra`` (one
 more mode at 1450 Hz along x).
 
-Run: ``PYTHONPATH=. python benchmarks/bench_learn_support.py --truth exact two [--seeds 1 2 3 4 5 6]``
+Run: ``PYTHONPATH=. python benchmarks/bench_learn_support.py --truth exact two [--seeds 1 2 3 4 5 6]
+[--flip 0.05]`` (the share of the random cuts' marks flipped)
 (about 2.5 min per seed and truth on 2 cores). docs/learn.md, session 28, has seeds 1-6 of
 ``exact`` and ``two``.
 """
@@ -33,7 +37,7 @@ from planner.learn.likelihood import CHATTER, STABLE
 from planner.learn.outcomes_io import CutTable
 from planner.learn.posterior import PriorSD
 from planner.learn.speed_range import chance_limit_for_plan
-from planner.learn.support import plan_support
+from planner.learn.support import best_backed, plan_support
 from planner.learn.synthetic import label, random_cuts, tool_problem, true_limits
 from planner.learn.update import learn
 from planner.optimize import plan
@@ -54,33 +58,49 @@ def problem(truth: str, seed: int):
 
 
 def planned(prob, cuts, likelihood, seed):
-    """``learn`` then ``plan`` at P >= 0.95: (rpm, depth) or None."""
-    post = learn(prob.setup, prob.prior, cuts, likelihood=likelihood, seed=seed).posterior
+    """``learn`` then ``plan`` at P >= 0.95: (rpm, depth, mrr, MAP model, each mark's probability
+    of being wrong) or None."""
+    result = learn(prob.setup, prob.prior, cuts, likelihood=likelihood, seed=seed)
+    post = result.posterior
     model = post.map_model()[0]
     limit, _ = chance_limit_for_plan(post, model, prob.setup, probability=0.95)
-    result = plan(prob.setup, model, stability_limit=limit)
-    if not result.success:
+    result_plan = plan(prob.setup, model, stability_limit=limit)
+    if not result_plan.success:
         return None
-    d = result.to_dict()
-    return d["spindle_rpm"], d["axial_depth_m"]
+    d = result_plan.to_dict()
+    return d["spindle_rpm"], d["axial_depth_m"], d["mrr_m3_s"], model, result.mislabel_probability
 
 
-def one_seed(truth: str, seed: int, likelihood):
-    """The two plans of a seed: (rpm, depth, true limit, status) each, or None."""
+def alternative(prob, cuts, model, mislabelled, mrr):
+    """The best backed cut: (rpm, depth, true limit, share of the plan's removal rate) or None."""
+    alt = best_backed(prob.setup, model, cuts, mislabelled=mislabelled)
+    if alt is None:
+        return None
+    cut = prob.setup.cut
+    lim = float(true_limits(prob, [alt["spindle_rpm"]], [cut.radial_depth_m], [cut.milling == "down"])[0])
+    return alt["spindle_rpm"], alt["axial_depth_m"], lim, alt["mrr_m3_s"] / mrr
+
+
+def one_seed(truth: str, seed: int, likelihood, flip: float = 0.05):
+    """The two plans of a seed: (rpm, depth, true limit, status, best backed cut with the
+    posterior's doubt, without) each, or None."""
     prob = problem(truth, seed)
     ae, down = prob.setup.cut.radial_depth_m, prob.setup.cut.milling == "down"
     rng = np.random.default_rng(1000 + seed)
     cuts = random_cuts(prob, 30, rng)
-    cuts = label(cuts, true_limits(prob, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down), rng)
+    cuts = label(cuts, true_limits(prob, cuts.spindle_rpm, cuts.radial_depth_m, cuts.down), rng, flip=flip)
     rows = []
     for _ in range(2):
         p = planned(prob, cuts, likelihood, seed)
         if p is None:
             rows.append(None)
             break
-        n, ap = p
+        n, ap, mrr, model, wrong = p
         lim = float(true_limits(prob, [n], [ae], [down])[0])
-        rows.append((n, ap, lim, plan_support(cuts, n, ap, ae, down)["status"]))
+        status = plan_support(cuts, n, ap, ae, down, mislabelled=wrong)["status"]
+        alts = ((alternative(prob, cuts, model, wrong, mrr), alternative(prob, cuts, model, None, mrr))
+                if status != "backed" else (None, None))
+        rows.append((n, ap, lim, status, *alts))
         # the plan cut as a test, labelled by the truth
         cuts = cuts.concat(CutTable(np.array([n]), np.array([ap]), np.array([ae]), np.array([down]),
                                     np.array([CHATTER if ap >= lim else STABLE]), np.ones(1), np.full(1, np.nan),
@@ -88,33 +108,51 @@ def one_seed(truth: str, seed: int, likelihood):
     return rows
 
 
+def _alt(a):
+    if a is None:
+        return f"{'-':>7} {'-':>9} {'-':>8} {'-':>6} {'-':>5}"
+    n, depth, lim, share = a
+    return f"{n:7.0f} {1e3 * depth:9.2f} {1e3 * lim:8.2f} {str(depth < lim):>6} {100 * share:4.0f}%"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--truth", nargs="+", choices=sorted(TRUTHS), default=["exact", "two"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5, 6])
+    ap.add_argument("--flip", type=float, default=0.05, help="share of the random cuts' marks flipped")
     args = ap.parse_args(argv)
     likelihood = _likelihood(build_parser().parse_args(["learn", "s", "--model", "m", "--cuts", "c"]))
-    summary = {}
+    summary, alts = {}, {}
     print(f"{'truth':>6} {'seed':>4} | {'plan':>6} {'rpm':>7} {'depth mm':>9} {'true mm':>8} {'stable':>6} "
-          f"{'status':>13} | s")
+          f"{'status':>13} | {'alt rpm':>7} {'depth mm':>9} {'true mm':>8} {'stable':>6} {'share':>5} | "
+          f"{'alt* rpm':>7} {'depth mm':>9} {'true mm':>8} {'stable':>6} {'share':>5} | s")
     for truth in args.truth:
         tally = summary.setdefault(truth, {})
         for seed in args.seeds:
             t0 = time.perf_counter()
-            for k, row in enumerate(one_seed(truth, seed, likelihood)):
+            for k, row in enumerate(one_seed(truth, seed, likelihood, args.flip)):
                 if row is None:
                     print(f"{truth:>6} {seed:>4} | {k:>6} no plan")
                     continue
-                n, depth, lim, status = row
+                n, depth, lim, status, alt, alt_naive = row
                 stable = depth < lim
                 tally[(status, stable)] = tally.get((status, stable), 0) + 1
+                for key, a in (("doubt", alt), ("face value", alt_naive)):
+                    if a is not None:
+                        t = alts.setdefault(key, [0, 0, []])
+                        t[0 if a[1] < a[2] else 1] += 1
+                        t[2].append(a[3])
                 print(f"{truth:>6} {seed:>4} | {('first', 'second')[k]:>6} {n:7.0f} {1e3 * depth:9.2f} "
-                      f"{1e3 * lim:8.2f} {str(stable):>6} {status:>13} | {time.perf_counter() - t0:.0f}", flush=True)
+                      f"{1e3 * lim:8.2f} {str(stable):>6} {status:>13} | {_alt(alt)} | {_alt(alt_naive)} | "
+                      f"{time.perf_counter() - t0:.0f}", flush=True)
     print("\nplans by status (truly stable / chattering):")
     for truth, tally in summary.items():
         parts = [f"{s}: {tally.get((s, True), 0)} / {tally.get((s, False), 0)}"
                  for s in ("backed", "contradicted", "extrapolated")]
         print(f"  {truth}: " + "; ".join(parts))
+    print("best backed cuts (truly stable / chattering; median share of the plan's removal rate):")
+    for key, (ok, bad, shares) in alts.items():
+        print(f"  {key}: {ok} / {bad}; {100 * np.median(shares):.0f} %")
 
 
 if __name__ == "__main__":

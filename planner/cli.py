@@ -292,15 +292,21 @@ def _cmd_plan(args) -> int:
                              else (None, None, None))  # a model with x_posterior: the chance constraint
     with naming_files(args.setup):
         result = plan(setup, model, method=args.method, stability_limit=limit)
-    if args.output:
-        fig, _ = result.plot()
-        save_figure(fig, args.output)
     payload = result.to_dict()
     if learned is not None:
         if result.success:
             verify_plan(limit, learned, payload["spindle_rpm"], payload["axial_depth_m"])
-            report_support(learned, tests, setup.cut, payload["spindle_rpm"], payload["axial_depth_m"])
+            report_support(learned, tests, setup, model, payload, method=args.method)
         payload["learned"] = learned
+    if args.output:
+        fig, ax = result.plot(limit_label=None if learned is None else f"P(stable) >= {args.probability:g}")
+        if tests is not None:  # what the test cuts prove, beside what the posterior allows
+            from planner.learn.plots import draw_best_backed, draw_test_cuts
+
+            draw_test_cuts(ax, tests.cuts, setup.cut.radial_depth_m, setup.cut.milling, mislabelled=tests.mislabelled)
+            draw_best_backed(ax, (learned.get("support") or {}).get("best_backed"))
+            ax.legend(loc="best", fontsize="small")
+        save_figure(fig, args.output)
 
     def human(p):
         if not p["success"]:
@@ -321,6 +327,14 @@ def _cmd_plan(args) -> int:
         if support:
             text += (f"\ntest cuts within {100 * support['speed_tolerance']:g} % of its speed: {support['status']}"
                      + (f" (cut {', '.join(map(str, support['backed_by']))})" if support["status"] == "backed" else ""))
+            alt = support.get("best_backed")
+            if alt:
+                text += (f"\nbest cut a stable test cut proves: {alt['spindle_rpm']:.0f} rpm, axial depth "
+                         f"{1e3 * alt['axial_depth_m']:.2f} mm, feed {1e3 * alt['feed_per_tooth_m']:.3f} mm/tooth: MRR "
+                         f"{1e6 * alt['mrr_m3_s']:.2f} cm^3/s ({100 * alt['share_of_plan']:.0f} % of the plan's; "
+                         f"cut {alt['backed_by']})")
+            elif support["status"] != "backed":
+                text += "\nno stable test cut at the plan's engagement proves a cut within the setup's limits"
         return "\n".join([text] + [f"warning: {w}" for w in learned_.get("warnings", [])])
 
     emit(args, payload, human)

@@ -14,7 +14,7 @@ __all__ = ["plot_plan"]
 _MM = 1e3
 
 
-def plot_plan(plan, ax=None, *, show_lobes: bool = True):
+def plot_plan(plan, ax=None, *, show_lobes: bool = True, limit_label: str | None = None):
     """The lobe diagram with the planned depth line, every pocket's answer and the optimum.
 
     Parameters
@@ -23,6 +23,9 @@ def plot_plan(plan, ax=None, *, show_lobes: bool = True):
     ax : matplotlib Axes, optional
     show_lobes : bool
         Draw the individual ZOA lobes under the envelope.
+    limit_label : str, optional
+        What the limit is when the plan was made against a given one (``stability_limit``, e.g.
+        the chance constraint of a posterior), for its legend entry and the title.
 
     Returns
     -------
@@ -38,6 +41,10 @@ def plot_plan(plan, ax=None, *, show_lobes: bool = True):
     from stability.plots import plot_lobes
 
     fig, ax = plot_lobes(plan.diagram, ax=ax, show_lobes=show_lobes)
+    if limit_label:  # the diagram holds a given limit, sampled, not the model's lobes
+        for line in ax.get_lines():
+            if line.get_label().endswith("envelope"):
+                line.set_label(limit_label)
     rpm = np.asarray(plan.diagram.rpm, dtype=float)
     depth = np.asarray(plan.diagram.depth_limit_m, dtype=float)
     ax.plot(rpm, plan.stability_margin * depth * _MM, color="tab:orange", ls="--", lw=1.2,
@@ -60,6 +67,6 @@ def plot_plan(plan, ax=None, *, show_lobes: bool = True):
         right = plan.spindle_rpm > 0.5 * (rpm[0] + rpm[-1])  # keep the text inside the axes
         ax.annotate(text, (plan.spindle_rpm, plan.axial_depth_m * _MM), xytext=(-10 if right else 10, 10),
                     textcoords="offset points", fontsize="small", ha="right" if right else "left")
-    ax.set_title(f"plan ({plan.method.upper()}): {plan.status}")
+    ax.set_title(f"plan ({limit_label or plan.method.upper()}): {plan.status}")
     ax.legend(loc="best", fontsize="small")
     return fig, ax

@@ -267,9 +267,9 @@ class Plan:
             "pockets": [p.to_dict() for p in self.pockets], "elapsed_s": float(self.elapsed_s),
         }
 
-    def plot(self, ax=None):
+    def plot(self, ax=None, *, limit_label: str | None = None):
         """Lobes, the planned-depth line, pocket answers and the optimum (see
         :func:`planner.plan_plots.plot_plan`)."""
         from .plan_plots import plot_plan
 
-        return plot_plan(self, ax=ax)
+        return plot_plan(self, ax=ax, limit_label=limit_label)

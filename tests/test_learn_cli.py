@@ -84,9 +84,14 @@ def test_learn_writes_a_posterior_that_reads_back(files, capsys, suggest_for):
     # ... with the cuts it was learned from, in the table's order (``plan`` compares its cut with them)
     back = read_posterior_cuts(d / "post.yaml")
     table = read_cuts(d / "cuts.csv", tool=problem.setup.tool)
-    assert back.n_cuts == table.n_cuts == 11 and back.outcome[-1] == UNCERTAIN
+    assert back.n_cuts == table.n_cuts == 11 and back.cuts.outcome[-1] == UNCERTAIN
     for k in ("spindle_rpm", "axial_depth_m", "radial_depth_m", "down", "outcome", "weight"):
-        np.testing.assert_array_equal(getattr(back, k), getattr(table, k))
+        np.testing.assert_array_equal(getattr(back.cuts, k), getattr(table, k))
+    # ... each mark with the posterior's probability that it is wrong, the suspect marks above 0.5
+    # (the uncertain last one has none)
+    wrong = back.mislabelled
+    assert np.all((wrong[:-1] >= 0) & (wrong[:-1] <= 1)) and np.isnan(wrong[-1])
+    assert sorted(s["index"] for s in res["suspect_labels"]) == list(np.flatnonzero(wrong > 0.5))
     assert read_posterior_cuts(d / "prior.yaml") is None
     assert (d / "lobes.png").stat().st_size > 1000
 

@@ -15,7 +15,7 @@ from planner.cli import main
 from planner.learn.likelihood import CHATTER, STABLE, UNCERTAIN
 from planner.learn.outcomes_io import CutTable
 from planner.learn.posterior_io import read_posterior_cuts, write_posterior_model
-from planner.learn.support import SPEED_TOLERANCE, plan_support
+from planner.learn.support import SPEED_TOLERANCE, best_backed, plan_support
 from planner.learn.synthetic import tool_problem, true_limits
 from stability.setup_io import write_setup
 
@@ -54,6 +54,73 @@ def test_a_cut_backs_a_plan_only_at_its_speed_width_and_milling_and_at_least_its
     s = plan_support(_cuts([(20050.0, 0.008, 0.5 * D, True, STABLE), (19950.0, 0.006, 0.5 * D, True, STABLE),
                             (20000.0, 0.009, 0.3 * D, True, STABLE)]), **plan)
     assert s["status"] == "extrapolated" and s["deepest_stable_nearby_m"] == 0.008 and s["nearby"] == 2
+
+
+def test_a_stable_mark_the_posterior_takes_for_wrong_backs_nothing_while_a_doubted_chatter_mark_still_contradicts():
+    plan = dict(spindle_rpm=20000.0, axial_depth_m=0.010, radial_depth_m=0.5 * D, down=True)
+    rows = [(20000.0, 0.030, 0.5 * D, True, STABLE), (20000.0, 0.012, 0.5 * D, True, STABLE)]
+    # the deep mark looks wrong to the posterior (a flipped chatter), the other does not
+    s = plan_support(_cuts(rows), **plan, mislabelled=[0.9, 0.1])
+    assert s["status"] == "backed" and s["backed_by"] == [1] and s["doubted"] == [0]
+    s = plan_support(_cuts(rows[:1]), **plan, mislabelled=[0.9])
+    assert s["status"] == "extrapolated" and s["doubted"] == [0] and s["deepest_stable_nearby_m"] is None
+    # not known (NaN, or a file written before the probabilities were): taken as sure
+    assert plan_support(_cuts(rows[:1]), **plan, mislabelled=[np.nan])["status"] == "backed"
+    assert plan_support(_cuts(rows[:1]), **plan)["status"] == "backed"
+    chatter = _cuts([(20000.0, 0.009, 0.5 * D, True, CHATTER)])
+    assert plan_support(chatter, **plan, mislabelled=[0.95])["status"] == "contradicted"
+
+
+def _slot_mrr(setup, rpm, ap, fz):
+    return rpm / 60.0 * setup.tool.teeth * fz * ap * setup.cut.radial_depth_m
+
+
+def test_the_best_backed_cut_is_the_largest_removal_rate_the_sure_stable_cuts_prove_under_the_setups_limits():
+    """:func:`best_backed` on the slotting setup (9-12 krpm, feed up to 0.1 mm/tooth): each stable
+    cut at the engagement proves its speed up to its depth; the answer is the best of those by the
+    removal rate's closed form, and honours the other limits (a spindle power limit checked against
+    the mean cutting power of a full slot in closed form)."""
+    from dataclasses import replace
+
+    problem, setup, _ = slotting_posterior()
+    rows = [(10000.0, 3.0e-3, D, True, STABLE),    # 30 000 rpm mm: the best plain candidate
+            (11800.0, 2.4e-3, D, True, STABLE),    # 28 320
+            (9500.0, 8.0e-3, D, False, STABLE),    # up milling: another limit
+            (11000.0, 20e-3, D, True, STABLE),     # looks wrong to the posterior (below)
+            (12500.0, 10e-3, D, True, STABLE),     # outside the setup's speed range
+            (9200.0, 30e-3, 0.5 * D, True, STABLE)]  # another width
+    doubt = [0.01, 0.02, 0.01, 0.9, 0.01, 0.01]
+    fz = setup.limits.feed_per_tooth_m[1]
+    best = best_backed(setup, problem.prior, _cuts(rows), mislabelled=doubt)
+    assert best["backed_by"] == 0 and abs(best["spindle_rpm"] / 10000.0 - 1) < 2e-4
+    assert best["axial_depth_m"] == pytest.approx(3.0e-3, rel=1e-6) and best["feed_per_tooth_m"] == pytest.approx(fz)
+    assert best["mrr_m3_s"] == pytest.approx(_slot_mrr(setup, 10000.0, 3.0e-3, fz), rel=2e-4)
+    # a chatter mark at 10 000 rpm under 3 mm contradicts that cut's plan: the next one
+    contradicted = _cuts(rows + [(10000.0, 2.9e-3, D, True, CHATTER)])
+    best = best_backed(setup, problem.prior, contradicted, mislabelled=doubt + [0.9])
+    assert best["backed_by"] == 1 and best["mrr_m3_s"] == pytest.approx(_slot_mrr(setup, 11800.0, 2.4e-3, fz), rel=2e-4)
+    # without the posterior's doubt the 20 mm mark would be taken at face value
+    assert best_backed(setup, problem.prior, _cuts(rows))["backed_by"] == 3
+    # a power limit binds. The mean cutting power of a full slot, z teeth: the mean tangential force
+    # z a (2 Ktc fz + pi Kte) / (2 pi) times the edge speed pi D n / 60 (the helix does not change
+    # the mean). At a fixed power the removal rate n a fz grows with fz (the edge term costs power
+    # per depth, not per feed), so each candidate's best is the largest feed at the depth the
+    # power allows, capped by the cut's depth
+    c = replace(setup.material.cutting_coefficients, Kte_N_m=5e3)  # an edge force, so that the feed matters
+    z = setup.tool.teeth
+
+    def power(n, ap, f):
+        return z * ap * (2 * c.Ktc_N_m2 * f + np.pi * c.Kte_N_m) / (2 * np.pi) * np.pi * D * n / 60.0
+
+    limit = power(10000.0, 3.0e-3, 0.6 * fz)
+    limited = replace(setup, material=replace(setup.material, cutting_coefficients=c),
+                      limits=replace(setup.limits, spindle_power_W=limit))
+    best = best_backed(limited, problem.prior, _cuts(rows), mislabelled=doubt)
+    expected = {i: _slot_mrr(setup, n, min(a, a * limit / power(n, a, fz)), fz)
+                for i, (n, a, *_) in enumerate(rows[:2])}
+    assert "power" in best["active_constraints"] and best["feed_per_tooth_m"] == pytest.approx(fz, rel=1e-3)
+    assert best["mrr_m3_s"] == pytest.approx(max(expected.values()), rel=0.01)
+    assert power(best["spindle_rpm"], best["axial_depth_m"], best["feed_per_tooth_m"]) == pytest.approx(limit, rel=0.01)
 
 
 def test_a_chatter_cut_at_or_below_the_plan_contradicts_it_even_where_another_backs_it():
@@ -102,20 +169,24 @@ def planned(tmp_path_factory):
     return d, post, far
 
 
-def _plan(capsys, d, model):
-    code = main(["plan", str(d / "setup.yaml"), "--model", str(d / model), "--json"])
+def _plan(capsys, d, model, *extra):
+    code = main(["plan", str(d / "setup.yaml"), "--model", str(d / model), "--json", *extra])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     return json.loads(captured.out)
 
 
-def test_plan_says_whether_the_test_cuts_back_its_cut(planned, capsys):
+def test_plan_says_whether_the_test_cuts_back_its_cut(planned, capsys, tmp_path, monkeypatch):
+    import planner.cli as cli
+
     d, post, far = planned
     out = _plan(capsys, d, "far.yaml")
     n, ap = out["spindle_rpm"], out["axial_depth_m"]
     support = out["learned"]["support"]
     assert support["status"] == "extrapolated" and support["nearby"] == 0
     assert any("extrapolation from the cuts" in w and "none was cut there" in w for w in out["learned"]["warnings"])
+    # no stable cut at the setup's engagement within its speed range (9-12 krpm) proves anything
+    assert support["best_backed"] is None
     # the plan cut as a test and found stable: backed, the warning gone; the same plan (the cuts
     # change nothing but the support)
     write_posterior_model(post, d / "backed.yaml", cuts=far.concat(_cuts([(round(n, -1), ap * 1.001, D, True, STABLE)])))
@@ -124,12 +195,28 @@ def test_plan_says_whether_the_test_cuts_back_its_cut(planned, capsys):
     assert out["learned"]["support"]["status"] == "backed" and out["learned"]["support"]["backed_by"] == [3]
     assert not any("test cut" in w for w in out["learned"].get("warnings", []))
     # ... and found chattering a little shallower: contradicted, with a warning naming the cut
-    write_posterior_model(post, d / "chatter.yaml", cuts=far.concat(_cuts([(n, 0.9 * ap, D, True, CHATTER)])))
-    out = _plan(capsys, d, "chatter.yaml")
-    assert out["learned"]["support"]["status"] == "contradicted"
+    # (and a shallow stable cut at 10 000 rpm: the best cut the cuts prove, which the plan's removal rate beats)
+    write_posterior_model(post, d / "chatter.yaml", cuts=far.concat(_cuts([(n, 0.9 * ap, D, True, CHATTER),
+                                                                           (10000.0, 1e-3, D, True, STABLE)])))
+    drawn = {}
+    monkeypatch.setattr(cli, "save_figure", lambda fig, path: drawn.update(fig=fig))
+    out = _plan(capsys, d, "chatter.yaml", "-o", str(tmp_path / "plan.png"))
+    support = out["learned"]["support"]
+    assert support["status"] == "contradicted"
     assert any("cut 3 (" in w and "chatters" in w for w in out["learned"]["warnings"])
+    alt = support["best_backed"]
+    assert alt["backed_by"] == 4 and alt["axial_depth_m"] == pytest.approx(1e-3, rel=1e-6)
+    assert alt["share_of_plan"] == pytest.approx(alt["mrr_m3_s"] / out["mrr_m3_s"]) and alt["share_of_plan"] < 1
+    # the figure: the plan's lobes with the test cuts at its engagement and the best backed cut
+    ax = drawn["fig"].axes[0]
+    lines, labels = ax.get_legend_handles_labels()
+    assert "test cut: chatter" in labels and "test cut: stable" in labels
+    diamond = lines[next(i for i, t in enumerate(labels) if t.startswith("best cut a test proves"))]
+    assert np.allclose(np.ravel(diamond.get_xydata()), [alt["spindle_rpm"], 1e3 * alt["axial_depth_m"]])
     main(["plan", str(d / "setup.yaml"), "--model", str(d / "chatter.yaml")])
-    assert "test cuts within 1 % of its speed: contradicted" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "test cuts within 1 % of its speed: contradicted" in text
+    assert "best cut a stable test cut proves: 10000 rpm, axial depth 1.00 mm" in text
     # a posterior written without its cuts: not known, said so
     write_posterior_model(post, d / "old.yaml")
     out = _plan(capsys, d, "old.yaml")

@@ -245,8 +245,13 @@ def _cmd_learn(args) -> int:
         fig, _ = lobes.plot(cuts=cuts)
         save_figure(fig, args.plot)
     if args.output:
-        # with the cuts, which ``plan`` compares its cut with (:mod:`.support`)
-        payload["posterior"] = str(write_posterior_model(post, args.output, cuts=cuts.take(cuts.outcome >= 0)))
+        # with the cuts, which ``plan`` compares its cut with, and how likely each mark is wrong
+        # (a suspect stable mark backs no cut: :mod:`.support`)
+        marked = cuts.outcome >= 0
+        wrong = result.mislabel_probability
+        payload["posterior"] = str(write_posterior_model(
+            post, args.output, cuts=cuts.take(marked),
+            mislabelled=wrong[marked] if wrong.shape == (cuts.n_cuts,) else None))
     timings["total"] = time.perf_counter() - started
     emit(args, payload, lambda d: _human(d, result))
     return EXIT_OK
@@ -297,12 +302,14 @@ def verify_plan(limit, learned: dict, rpm: float, axial_depth_m: float) -> None:
             f"{limit.probability:g} the limit table gave: plan a lower depth or check the cut")
 
 
-def report_support(learned: dict, tests, cut, rpm: float, axial_depth_m: float) -> None:
-    """For ``plan``: what the test cuts the posterior was learned from (``tests``, from
-    :func:`chance_constraint`; None when its file does not carry them) say about the planned cut at
-    the setup's ``cut`` (radial depth, milling): ``learned['support']`` (:mod:`.support`) and a
-    warning unless one of them backs it."""
-    from .support import plan_support, support_warning
+def report_support(learned: dict, tests, setup, structure, planned: dict, *, method: str = "auto") -> None:
+    """For ``plan``: what the test cuts the posterior was learned from (``tests``, the
+    :class:`.posterior_io.PosteriorCuts` from :func:`chance_constraint`; None when its file does not
+    carry them) say about the planned cut (``planned``: the plan's JSON) at the setup's engagement:
+    ``learned['support']`` (:mod:`.support`) and a warning unless one of them backs it. Where none
+    does, ``support['best_backed']`` is the best plan the stable cuts prove (:func:`.support.best_backed`,
+    with ``structure`` for the other limits; its ``share_of_plan`` of the plan's removal rate)."""
+    from .support import best_backed, plan_support, support_warning
 
     if tests is None:
         learned["support"] = None
@@ -310,8 +317,15 @@ def report_support(learned: dict, tests, cut, rpm: float, axial_depth_m: float) 
             "the posterior file does not carry the test cuts it was learned from (written by an earlier robomill): "
             "whether a test cut backs the plan is not known")
         return
-    learned["support"] = plan_support(tests, rpm, axial_depth_m, cut.radial_depth_m, cut.milling == "down")
-    text = support_warning(learned["support"], tests, rpm, axial_depth_m)
+    rpm, ap, cut = planned["spindle_rpm"], planned["axial_depth_m"], setup.cut
+    support = learned["support"] = plan_support(tests.cuts, rpm, ap, cut.radial_depth_m, cut.milling == "down",
+                                                mislabelled=tests.mislabelled)
+    if support["status"] != "backed":
+        alt = best_backed(setup, structure, tests.cuts, mislabelled=tests.mislabelled, method=method)
+        if alt is not None:
+            alt["share_of_plan"] = alt["mrr_m3_s"] / planned["mrr_m3_s"]
+        support["best_backed"] = alt
+    text = support_warning(support, tests.cuts, rpm, ap)
     if text:
         learned.setdefault("warnings", []).append(text)
 
@@ -368,4 +382,4 @@ def posterior_lobes(model_path, setup, rpm_range):
     if post is None:
         return None, None
     tests = read_posterior_cuts(model_path[0])  # read before the lobes are computed
-    return probability_lobes(post, setup, rpm_range), tests
+    return probability_lobes(post, setup, rpm_range), None if tests is None else tests.cuts

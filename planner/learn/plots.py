@@ -6,12 +6,12 @@ import numpy as np
 
 from .likelihood import CHATTER, STABLE, UNCERTAIN
 
-__all__ = ["plot_probability_lobes"]
+__all__ = ["plot_probability_lobes", "draw_test_cuts", "draw_best_backed"]
 
 
 def plot_probability_lobes(lobes, ax=None, *, cuts=None):
     """P(stable) over speed and depth, the 5 / 50 / 95 % contours, and the test cuts at this
-    engagement (o stable, x chatter, ? uncertain). Returns (figure, axes)."""
+    engagement (:func:`draw_test_cuts`). Returns (figure, axes)."""
     import matplotlib.pyplot as plt
 
     if ax is None:
@@ -27,16 +27,41 @@ def plot_probability_lobes(lobes, ax=None, *, cuts=None):
     for lev in lobes.levels:
         ax.plot(lobes.rpm, 1e3 * lobes.quantiles[lev], "k", ls=styles.get(lev, "-."), lw=1.2,
                 label=f"P(stable) = {100 * lev:g} %")
-    if cuts is not None and cuts.n_cuts:
-        same = np.isclose(cuts.radial_depth_m, lobes.radial_depth_m) & (cuts.down == (lobes.milling == "down"))
-        for code, marker, name in ((STABLE, "o", "stable"), (CHATTER, "x", "chatter"), (UNCERTAIN, "$?$", "uncertain")):
-            sel = same & (cuts.outcome == code)
-            if sel.any():
-                ax.scatter(cuts.spindle_rpm[sel], 1e3 * cuts.axial_depth_m[sel], marker=marker, c="k", s=30,
-                           label=f"test cut: {name}")
+    draw_test_cuts(ax, cuts, lobes.radial_depth_m, lobes.milling)
     ax.set_xlabel("spindle speed (rpm)")
     ax.set_ylabel("axial depth (mm)")
     ax.set_ylim(0, 1e3 * top)
     ax.set_title(f"posterior stability, a_e = {1e3 * lobes.radial_depth_m:.2f} mm, {lobes.milling} milling")
     ax.legend(loc="upper left", fontsize=8)
     return fig, ax
+
+
+def draw_test_cuts(ax, cuts, radial_depth_m: float, milling: str, *, mislabelled=None) -> None:
+    """The test ``cuts`` at an engagement (radial depth within :data:`.support.RADIAL_TOLERANCE`,
+    the milling direction) on depth (mm) over speed (rpm) axes: o stable, x chatter, ? uncertain;
+    a stable mark the posterior takes for wrong (``mislabelled`` above its suspect level) in grey."""
+    from .support import RADIAL_TOLERANCE
+    from .update import SUSPECT_LABEL
+
+    if cuts is None or not cuts.n_cuts:
+        return
+    same = ((np.abs(np.asarray(cuts.radial_depth_m) / radial_depth_m - 1.0) <= RADIAL_TOLERANCE)
+            & (cuts.down == (milling == "down")))
+    doubted = (np.zeros(cuts.n_cuts, bool) if mislabelled is None
+               else np.nan_to_num(np.asarray(mislabelled, dtype=float)) > SUSPECT_LABEL)
+    for sel, marker, colour, name in ((same & (cuts.outcome == STABLE) & ~doubted, "o", "k", "stable"),
+                                      (same & (cuts.outcome == STABLE) & doubted, "o", "0.6",
+                                       "stable, taken for wrong"),
+                                      (same & (cuts.outcome == CHATTER), "x", "k", "chatter"),
+                                      (same & (cuts.outcome == UNCERTAIN), "$?$", "k", "uncertain")):
+        if sel.any():
+            ax.scatter(cuts.spindle_rpm[sel], 1e3 * cuts.axial_depth_m[sel], marker=marker, c=colour, s=30,
+                       label=f"test cut: {name}", zorder=4)
+
+
+def draw_best_backed(ax, alt: dict | None) -> None:
+    """``plan``'s best cut a stable test cut proves (``learned.support.best_backed``) as a diamond."""
+    if not alt:
+        return
+    ax.plot([alt["spindle_rpm"]], [1e3 * alt["axial_depth_m"]], "D", color="tab:blue", mec="k", ms=9, ls="none",
+            zorder=5, label=f"best cut a test proves ({1e6 * alt['mrr_m3_s']:.3g} cm$^3$/s)")

@@ -22,7 +22,9 @@ of modal models reads it (they ignore ``x_`` keys). Beside it::
                                                           # the MAP sample first
       cuts:                          # the test cuts learned from (optional; since session 28),
         - {spindle_rpm: ..., axial_depth_m: ..., radial_depth_m: ..., milling: down,
-           outcome: stable, weight: 1.0}      # the label's weight (a detected outcome's confidence)
+           outcome: stable, weight: 1.0,      # the label's weight (a detected outcome's confidence)
+           probability_mislabelled: 0.02}     # the posterior's probability that the mark is wrong
+                                              # (since session 29; absent for `uncertain` marks)
 
 :func:`read_posterior` gives the samples back (``None`` for a model without them),
 :func:`read_posterior_cuts` the cuts (``plan`` compares its cut with them:
@@ -34,7 +36,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +51,7 @@ from .likelihood import Likelihood
 from .outcomes_io import OUTCOMES, CutTable
 from .posterior import PARAMETERS, Posterior
 
-__all__ = ["write_posterior_model", "read_posterior", "read_posterior_cuts", "POSTERIOR_FORMAT",
+__all__ = ["write_posterior_model", "read_posterior", "read_posterior_cuts", "PosteriorCuts", "POSTERIOR_FORMAT",
            "MAX_WRITTEN_SAMPLES"]
 
 POSTERIOR_FORMAT = "robomill-posterior/1"
@@ -58,10 +60,25 @@ POSTERIOR_FORMAT = "robomill-posterior/1"
 MAX_WRITTEN_SAMPLES = 500
 
 
+@dataclass(frozen=True)
+class PosteriorCuts:
+    """The test cuts a posterior was learned from, with the posterior's probability that each
+    mark is wrong (``mislabelled``, NaN where the file does not say: an ``uncertain`` mark, or a
+    file written before session 29)."""
+
+    cuts: CutTable
+    mislabelled: np.ndarray
+
+    @property
+    def n_cuts(self) -> int:
+        return self.cuts.n_cuts
+
+
 def posterior_to_dict(posterior: Posterior, *, max_samples: int = MAX_WRITTEN_SAMPLES,
-                      cuts: CutTable | None = None) -> dict:
+                      cuts: CutTable | None = None, mislabelled=None) -> dict:
     """The ``robomill-modal/1`` mapping of the MAP model with ``x_posterior`` beside it (and the
-    test ``cuts`` learned from, when given)."""
+    test ``cuts`` learned from, when given, with the posterior probability that each mark is wrong,
+    ``mislabelled``, where it is finite)."""
     post = posterior.thinned(max_samples)
     model, coef = posterior.map_model()
     ref = posterior.reference
@@ -77,15 +94,21 @@ def posterior_to_dict(posterior: Posterior, *, max_samples: int = MAX_WRITTEN_SA
         "samples": post.samples,
     }
     if cuts is not None:
-        doc["x_posterior"]["cuts"] = [{**cuts.row(i), "weight": float(cuts.weight[i])} for i in range(cuts.n_cuts)]
+        wrong = np.full(cuts.n_cuts, np.nan) if mislabelled is None else np.asarray(mislabelled, dtype=float)
+        if wrong.shape != (cuts.n_cuts,):
+            raise ValueError(f"mislabelled: one probability per cut ({cuts.n_cuts}), found shape {wrong.shape}")
+        doc["x_posterior"]["cuts"] = [{**cuts.row(i), "weight": float(cuts.weight[i]),
+                                       **({"probability_mislabelled": float(f"{wrong[i]:.3g}")} if np.isfinite(wrong[i]) else {})}
+                                      for i in range(cuts.n_cuts)]
     return doc
 
 
 def write_posterior_model(posterior: Posterior, path, *, max_samples: int = MAX_WRITTEN_SAMPLES,
-                          cuts: CutTable | None = None) -> Path:
-    """Write the MAP model with the posterior samples (and the test ``cuts``) atomically."""
+                          cuts: CutTable | None = None, mislabelled=None) -> Path:
+    """Write the MAP model with the posterior samples (and the test ``cuts``, with the probability
+    that each mark is wrong: :func:`posterior_to_dict`) atomically."""
     target = Path(os.fspath(path))
-    text = dump_yaml(posterior_to_dict(posterior, max_samples=max_samples, cuts=cuts))
+    text = dump_yaml(posterior_to_dict(posterior, max_samples=max_samples, cuts=cuts, mislabelled=mislabelled))
     with atomic_write(target) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return target
@@ -147,9 +170,10 @@ def read_posterior(path) -> Posterior | None:
                      log_posterior=mark, likelihood=likelihood, method=method, mode_spread=spread)
 
 
-def read_posterior_cuts(path) -> CutTable | None:
-    """The test cuts a posterior was learned from (``x_posterior.cuts``); ``None`` for a model
-    without them (written before session 28, or not by ``learn``).
+def read_posterior_cuts(path) -> PosteriorCuts | None:
+    """The test cuts a posterior was learned from (``x_posterior.cuts``), with the posterior's
+    probability that each mark is wrong; ``None`` for a model without them (written before session
+    28, or not by ``learn``).
 
     Raises
     ------
@@ -163,7 +187,7 @@ def read_posterior_cuts(path) -> CutTable | None:
     if not isinstance(rows, list) or not rows:
         raise ModelError(path, "x_posterior.cuts", "a list of cuts", repr(rows)[:60])
     cols = {k: [] for k in ("spindle_rpm", "axial_depth_m", "radial_depth_m", "weight")}
-    down, outcome = [], []
+    down, outcome, wrong = [], [], []
     for i, row in enumerate(rows):
         where = f"x_posterior.cuts[{i}]"
         if not isinstance(row, Mapping):
@@ -183,8 +207,13 @@ def read_posterior_cuts(path) -> CutTable | None:
             raise ModelError(path, f"{where}.outcome", " or ".join(OUTCOMES), repr(row.get("outcome"))[:60])
         down.append(row["milling"] == "down")
         outcome.append(OUTCOMES[row["outcome"]])
+        p = row.get("probability_mislabelled", math.nan)
+        if not (isinstance(p, (int, float)) and not isinstance(p, bool) and (math.isnan(p) or 0 <= p <= 1)):
+            raise ModelError(path, f"{where}.probability_mislabelled", "a probability in [0, 1]", repr(p)[:60])
+        wrong.append(float(p))
     n = len(rows)
     # the feed is not compared with the plan (the stability limit does not depend on it)
-    return CutTable(np.array(cols["spindle_rpm"]), np.array(cols["axial_depth_m"]), np.array(cols["radial_depth_m"]),
+    cuts = CutTable(np.array(cols["spindle_rpm"]), np.array(cols["axial_depth_m"]), np.array(cols["radial_depth_m"]),
                     np.array(down), np.array(outcome), np.array(cols["weight"]), np.full(n, np.nan),
                     np.zeros(n, dtype=bool))
+    return PosteriorCuts(cuts, np.array(wrong))

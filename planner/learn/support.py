@@ -23,7 +23,15 @@ steeply between lobes, so "near" is within :data:`SPEED_TOLERANCE` and :data:`RA
 - ``extrapolated``: neither.
 
 Marks only: ``uncertain`` marks (near the boundary by definition) and detected outcomes weighted
-under :data:`MIN_WEIGHT` (a detection less sure than not) neither back nor contradict.
+under :data:`MIN_WEIGHT` (a detection less sure than not) neither back nor contradict. A stable mark
+that the posterior takes for wrong (probability above :data:`~.update.SUSPECT_LABEL`, the
+``suspect_labels`` of ``learn``) backs nothing either: with 5 % of the marks flipped, a chatter
+cut far above the limit marked stable would otherwise back any plan below it. A chatter mark
+contradicts whatever the posterior thinks of it: that is the point of the check.
+
+Where the plan is not backed, :func:`best_backed` plans again on the test cuts alone: the largest
+removal rate at the speed and up to the depth of a stable test cut (at the plan's engagement), under
+every other limit of the setup. It is what the cuts prove, to run while the plan is tried.
 """
 
 from __future__ import annotations
@@ -32,8 +40,9 @@ import numpy as np
 
 from .likelihood import CHATTER, STABLE
 from .outcomes_io import CutTable
+from .update import SUSPECT_LABEL
 
-__all__ = ["plan_support", "support_warning", "SPEED_TOLERANCE", "RADIAL_TOLERANCE", "MIN_WEIGHT"]
+__all__ = ["plan_support", "support_warning", "best_backed", "SPEED_TOLERANCE", "RADIAL_TOLERANCE", "MIN_WEIGHT"]
 
 #: Largest relative speed difference between a test cut and the plan for the cut to speak for the
 #: plan: a test cut of the plan's own speed, typed by hand to two or three significant digits, is
@@ -49,36 +58,108 @@ RADIAL_TOLERANCE = 0.02
 MIN_WEIGHT = 0.5
 
 
+def _sure(cuts: CutTable, mislabelled, radial_depth_m: float, down: bool,
+          radial_tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of the sure stable marks (not suspect) and sure chatter marks at the engagement."""
+    ae = np.asarray(cuts.radial_depth_m, dtype=float)
+    at = ((np.asarray(cuts.weight, dtype=float) >= MIN_WEIGHT) & (np.asarray(cuts.down, dtype=bool) == bool(down))
+          & (np.abs(ae / float(radial_depth_m) - 1.0) <= radial_tolerance))
+    doubted = (np.zeros(cuts.n_cuts, dtype=bool) if mislabelled is None
+               else np.nan_to_num(np.asarray(mislabelled, dtype=float)) > SUSPECT_LABEL)
+    return at & (cuts.outcome == STABLE) & ~doubted, at & (cuts.outcome == CHATTER)
+
+
 def plan_support(cuts: CutTable, spindle_rpm: float, axial_depth_m: float, radial_depth_m: float,
-                 down: bool, *, speed_tolerance: float = SPEED_TOLERANCE,
+                 down: bool, *, mislabelled=None, speed_tolerance: float = SPEED_TOLERANCE,
                  radial_tolerance: float = RADIAL_TOLERANCE) -> dict:
     """The test cuts that back or contradict a planned cut (module notes).
+
+    ``mislabelled``: the posterior's probability that each mark is wrong (NaN or None: not known);
+    a stable mark above :data:`~.update.SUSPECT_LABEL` backs nothing.
 
     Returns
     -------
     dict
         ``status`` (``backed``, ``contradicted`` or ``extrapolated``; contradicted wins over
         backed), ``speed_tolerance``, ``radial_tolerance``, ``backed_by`` and ``contradicted_by``
-        (indices into ``cuts``), ``nearby`` (how many sure marks lie at the plan's milling
-        direction, speed and width) and ``deepest_stable_nearby_m`` (the deepest stable one of
-        those; None without one).
+        (indices into ``cuts``), ``doubted`` (stable marks that would back the plan but look wrong
+        to the posterior), ``nearby`` (how many sure marks lie at the plan's milling direction,
+        speed and width) and ``deepest_stable_nearby_m`` (the deepest sure stable one of those;
+        None without one).
     """
-    rpm, ap, ae = (np.asarray(getattr(cuts, k), dtype=float) for k in ("spindle_rpm", "axial_depth_m",
-                                                                        "radial_depth_m"))
-    near = ((np.asarray(cuts.weight, dtype=float) >= MIN_WEIGHT) & (np.asarray(cuts.down, dtype=bool) == bool(down))
-            & (np.abs(rpm / float(spindle_rpm) - 1.0) <= speed_tolerance)
-            & (np.abs(ae / float(radial_depth_m) - 1.0) <= radial_tolerance))
-    stable = near & (cuts.outcome == STABLE)
-    chatter = near & (cuts.outcome == CHATTER)
+    rpm, ap = (np.asarray(getattr(cuts, k), dtype=float) for k in ("spindle_rpm", "axial_depth_m"))
+    at_speed = np.abs(rpm / float(spindle_rpm) - 1.0) <= speed_tolerance
+    stable, chatter = (at_speed & m for m in _sure(cuts, mislabelled, radial_depth_m, down, radial_tolerance))
     # a relative slack of 1e-9: a test cut written back from the plan's own numbers is the plan
-    backed = stable & (ap >= axial_depth_m * (1 - 1e-9))
+    deep_enough = ap >= axial_depth_m * (1 - 1e-9)
+    backed = stable & deep_enough
+    doubted = _sure(cuts, None, radial_depth_m, down, radial_tolerance)[0] & at_speed & deep_enough & ~backed
     contradicted = chatter & (ap <= axial_depth_m * (1 + 1e-9))
     status = "contradicted" if contradicted.any() else "backed" if backed.any() else "extrapolated"
     return {"status": status, "speed_tolerance": float(speed_tolerance), "radial_tolerance": float(radial_tolerance),
             "backed_by": [int(i) for i in np.flatnonzero(backed)],
             "contradicted_by": [int(i) for i in np.flatnonzero(contradicted)],
+            "doubted": [int(i) for i in np.flatnonzero(doubted)],
             "nearby": int(np.sum(stable | chatter)),
             "deepest_stable_nearby_m": float(ap[stable].max()) if stable.any() else None}
+
+
+#: Relative width of the speed range ``best_backed`` plans in, below the test cut's own speed (the
+#: planner needs a range; the answer is at the cut's speed to this precision).
+_SPEED_SLIVER = 1e-4
+
+
+def best_backed(setup, structure, cuts: CutTable, *, mislabelled=None, method: str = "auto",
+                radial_tolerance: float = RADIAL_TOLERANCE) -> dict | None:
+    """The largest removal rate the stable test cuts prove (module notes): for each sure stable
+    mark at the setup's engagement (milling direction, radial depth within ``radial_tolerance``)
+    and speed range, :func:`planner.optimize.plan` at its speed with the depth at most its depth,
+    under every other limit of ``setup`` (feed, power, torque, force, surface error with
+    ``structure``). Cuts are tried best bound first (their depth at the setup's largest feed)
+    until no untried one could beat the best plan; a plan that a chatter mark at its speed
+    contradicts is not taken.
+
+    Returns
+    -------
+    dict or None
+        ``spindle_rpm``, ``axial_depth_m``, ``feed_per_tooth_m``, ``mrr_m3_s``,
+        ``active_constraints`` (the plan's; ``stability`` there is the test cut's depth) and
+        ``backed_by`` (the cut's index); None when no sure stable mark lies at the engagement
+        within the setup's speed and depth ranges, or none gives a plan.
+    """
+    from dataclasses import replace
+
+    from planner.optimize import plan
+
+    lim = setup.limits
+    stable, _ = _sure(cuts, mislabelled, setup.cut.radial_depth_m, setup.cut.milling == "down", radial_tolerance)
+    rpm, ap = (np.asarray(getattr(cuts, k), dtype=float) for k in ("spindle_rpm", "axial_depth_m"))
+    lo, hi = lim.spindle_rpm
+    (d_lo, d_hi) = lim.axial_depth_m
+    candidates = np.flatnonzero(stable & (rpm >= lo) & (rpm <= hi) & (ap >= d_lo))
+    fz_max = (lim.feed_per_tooth_m or (setup.cut.feed_per_tooth_m,) * 2)[1]
+    bound = rpm * np.minimum(ap, d_hi) * fz_max * setup.cut.radial_depth_m * setup.tool.teeth / 60.0
+    best = None
+    for i in sorted(candidates, key=lambda k: -bound[k]):
+        if best is not None and bound[i] <= best["mrr_m3_s"]:
+            break
+        depth = min(float(ap[i]), float(d_hi))
+        at = replace(setup, limits=replace(lim, spindle_rpm=(float(rpm[i]) * (1 - _SPEED_SLIVER), float(rpm[i])),
+                                           axial_depth_m=(float(d_lo), depth)))
+        # the cut's own depth is the stability limit (strictly above it: the plan may reach it)
+        result = plan(at, structure, method=method,
+                      stability_limit=lambda n, a=depth: np.full(np.shape(n), a * (1 + 1e-6)))
+        if not result.success:
+            continue
+        support = plan_support(cuts, result.spindle_rpm, result.axial_depth_m, setup.cut.radial_depth_m,
+                               setup.cut.milling == "down", mislabelled=mislabelled, radial_tolerance=radial_tolerance)
+        if support["status"] != "backed":
+            continue
+        if best is None or result.mrr_m3_s > best["mrr_m3_s"]:
+            best = {"spindle_rpm": result.spindle_rpm, "axial_depth_m": result.axial_depth_m,
+                    "feed_per_tooth_m": result.feed_per_tooth_m, "mrr_m3_s": result.mrr_m3_s,
+                    "active_constraints": list(result.active_constraints), "backed_by": int(i)}
+    return best
 
 
 def support_warning(support: dict, cuts: CutTable, spindle_rpm: float, axial_depth_m: float) -> str | None:
@@ -95,8 +176,16 @@ def support_warning(support: dict, cuts: CutTable, spindle_rpm: float, axial_dep
         deepest = support["deepest_stable_nearby_m"]
         seen = (f"the deepest stable one there was {1e3 * deepest:.2f} mm" if deepest is not None
                 else "none was stable there" if support["nearby"] else "none was cut there")
+        doubted = support.get("doubted") or []
+        if doubted:
+            seen += (f"; cut(s) {', '.join(map(str, doubted))} read stable there but the posterior takes the "
+                     "mark(s) for wrong (suspect_labels of learn): recut to back the plan")
+        alt = support.get("best_backed")
+        best = (f"; the best cut the stable test cuts prove is {alt['spindle_rpm']:.0f} rpm at "
+                f"{1e3 * alt['axial_depth_m']:.2f} mm, {100 * alt['share_of_plan']:.0f} % of the plan's removal rate "
+                "(learned.support.best_backed)" if alt else "")
         return (f"no test cut within {tol} of {spindle_rpm:.0f} rpm at the plan's width was stable at its depth "
                 f"({1e3 * axial_depth_m:.2f} mm; {seen}): the plan's P(stable) is the model's "
                 "extrapolation from the cuts, which holds only if the prior has every mode the tool has; "
-                "cut the plan as a test cut and learn again with its outcome")
+                f"cut the plan as a test cut and learn again with its outcome{best}")
     return None
