@@ -56,7 +56,10 @@ def _cmd_lobes(args) -> int:
     learned, tests = (posterior_lobes(args.model, setup, rpm_range(args, setup)) if args.model
                       else (None, None))  # x_posterior, and the test cuts its file carries
     if args.output:
-        fig, _ = diagram.plot() if learned is None else learned.plot(cuts=tests)
+        if learned is None:
+            fig, _ = diagram.plot()
+        else:  # with the test cuts, the stable marks the posterior doubts in grey
+            fig, _ = learned.plot(cuts=getattr(tests, "cuts", None), mislabelled=getattr(tests, "mislabelled", None))
         save_figure(fig, args.output)
     payload = diagram.to_dict()
     if learned is not None:

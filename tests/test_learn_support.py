@@ -260,3 +260,25 @@ def test_lobes_of_a_posterior_draw_its_test_cuts_at_the_setups_engagement(planne
 
     points = np.vstack([c.get_offsets() for c in ax.collections if isinstance(c, PathCollection)])
     assert sorted(map(tuple, np.round(points, 3))) == [(6000.0, 1.0), (6500.0, 9.0)]
+
+
+def test_the_figures_grey_the_stable_marks_the_posterior_takes_for_wrong():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PathCollection
+
+    from planner.learn.plots import draw_test_cuts
+
+    cuts = _cuts([(10000.0, 3e-3, D, True, STABLE), (11000.0, 20e-3, D, True, STABLE),
+                  (12000.0, 5e-3, D, True, CHATTER), (9000.0, 4e-3, 1.01 * D, True, STABLE),  # within 2 %
+                  (9500.0, 4e-3, 0.5 * D, True, STABLE)])                                    # another width
+    fig, ax = plt.subplots()
+    draw_test_cuts(ax, cuts, D, "down", mislabelled=[0.1, 0.9, 0.95, np.nan, 0.0])
+    drawn = {c.get_label(): np.round(c.get_offsets(), 3).tolist() for c in ax.collections
+             if isinstance(c, PathCollection)}
+    plt.close(fig)
+    assert drawn == {"test cut: stable": [[10000.0, 3.0], [9000.0, 4.0]],
+                     "test cut: stable, taken for wrong": [[11000.0, 20.0]],
+                     "test cut: chatter": [[12000.0, 5.0]]}

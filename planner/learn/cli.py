@@ -240,18 +240,18 @@ def _cmd_learn(args) -> int:
     payload["posterior_samples"] = int(post.samples.shape[0])
     if args.output:
         payload["posterior_samples_written"] = min(int(post.samples.shape[0]), MAX_WRITTEN_SAMPLES)
+    # each mark's posterior probability of being wrong: the figure greys the stable marks it doubts,
+    # and a suspect stable mark backs no planned cut (:mod:`.support`)
+    wrong = result.mislabel_probability if result.mislabel_probability.shape == (cuts.n_cuts,) else None
     # ---- outputs last, each atomically
     if args.plot:
-        fig, _ = lobes.plot(cuts=cuts)
+        fig, _ = lobes.plot(cuts=cuts, mislabelled=wrong)
         save_figure(fig, args.plot)
     if args.output:
-        # with the cuts, which ``plan`` compares its cut with, and how likely each mark is wrong
-        # (a suspect stable mark backs no cut: :mod:`.support`)
+        # with the cuts, which ``plan`` compares its cut with
         marked = cuts.outcome >= 0
-        wrong = result.mislabel_probability
-        payload["posterior"] = str(write_posterior_model(
-            post, args.output, cuts=cuts.take(marked),
-            mislabelled=wrong[marked] if wrong.shape == (cuts.n_cuts,) else None))
+        payload["posterior"] = str(write_posterior_model(post, args.output, cuts=cuts.take(marked),
+                                                         mislabelled=None if wrong is None else wrong[marked]))
     timings["total"] = time.perf_counter() - started
     emit(args, payload, lambda d: _human(d, result))
     return EXIT_OK
@@ -369,8 +369,9 @@ def chance_constraint(model_path, setup, *, probability: float = 0.95):
 
 
 def posterior_lobes(model_path, setup, rpm_range):
-    """For ``lobes``: the probability lobes and the test cuts the file carries (None without) when
-    the model carries ``x_posterior``, else ``(None, None)``."""
+    """For ``lobes``: the probability lobes and the test cuts the file carries
+    (:class:`.posterior_io.PosteriorCuts`; None without) when the model carries ``x_posterior``,
+    else ``(None, None)``."""
     from pathlib import Path
 
     from .posterior_io import read_posterior, read_posterior_cuts
@@ -382,4 +383,4 @@ def posterior_lobes(model_path, setup, rpm_range):
     if post is None:
         return None, None
     tests = read_posterior_cuts(model_path[0])  # read before the lobes are computed
-    return probability_lobes(post, setup, rpm_range), None if tests is None else tests.cuts
+    return probability_lobes(post, setup, rpm_range), tests

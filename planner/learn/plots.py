@@ -9,9 +9,10 @@ from .likelihood import CHATTER, STABLE, UNCERTAIN
 __all__ = ["plot_probability_lobes", "draw_test_cuts", "draw_best_backed"]
 
 
-def plot_probability_lobes(lobes, ax=None, *, cuts=None):
+def plot_probability_lobes(lobes, ax=None, *, cuts=None, mislabelled=None):
     """P(stable) over speed and depth, the 5 / 50 / 95 % contours, and the test cuts at this
-    engagement (:func:`draw_test_cuts`). Returns (figure, axes)."""
+    engagement (:func:`draw_test_cuts`; ``mislabelled``, each mark's posterior probability of being
+    wrong, greys the stable ones it doubts). Returns (figure, axes)."""
     import matplotlib.pyplot as plt
 
     if ax is None:
@@ -27,7 +28,7 @@ def plot_probability_lobes(lobes, ax=None, *, cuts=None):
     for lev in lobes.levels:
         ax.plot(lobes.rpm, 1e3 * lobes.quantiles[lev], "k", ls=styles.get(lev, "-."), lw=1.2,
                 label=f"P(stable) = {100 * lev:g} %")
-    draw_test_cuts(ax, cuts, lobes.radial_depth_m, lobes.milling)
+    draw_test_cuts(ax, cuts, lobes.radial_depth_m, lobes.milling, mislabelled=mislabelled)
     ax.set_xlabel("spindle speed (rpm)")
     ax.set_ylabel("axial depth (mm)")
     ax.set_ylim(0, 1e3 * top)

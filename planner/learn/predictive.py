@@ -178,10 +178,10 @@ class ProbabilityLobes:
                 "depth_at_probability_m": {f"{p:g}": self.quantiles[p].tolist() for p in self.levels},
                 "boundary_width": self.scale, "model_error": self.model_error, "table_error": self.table_error}
 
-    def plot(self, ax=None, *, cuts: CutTable | None = None):
+    def plot(self, ax=None, *, cuts: CutTable | None = None, mislabelled=None):
         from .plots import plot_probability_lobes
 
-        return plot_probability_lobes(self, ax=ax, cuts=cuts)
+        return plot_probability_lobes(self, ax=ax, cuts=cuts, mislabelled=mislabelled)
 
 
 def probability_lobes(posterior: Posterior, setup, rpm_range, *, n_rpm: int = 150, method: str | None = None,
