@@ -9,8 +9,8 @@ unflipped), learned again and planned again. Reported per plan: whether it is tr
 depth under the truth's limit at its speed) and its support status (``backed``, ``contradicted``,
 ``extrapolated``; :func:`planner.learn.support.plan_support`). Where it is not backed, the best cut
 the stable test cuts prove (:func:`planner.learn.support.best_backed`, session 29): its speed, depth,
-true stability and share of the plan's removal rate, with the posterior's doubt about the marks
-and (``alt*``) taking every stable mark at face value.
+true stability and share of the plan's removal rate, with stable marks trusted up to each of
+:data:`DOUBTS` (the posterior's probability that the mark is wrong; 1: every mark at face value).
 
 Truths: ``exact`` (the model's family: one mode), ``two`` (a mode the prior lacks: the tool has
 modes at 700 Hz along x and 900 Hz along y, the prior the benchmark's one mode), ``extra`` (one
@@ -71,19 +71,25 @@ def planned(prob, cuts, likelihood, seed):
     return d["spindle_rpm"], d["axial_depth_m"], d["mrr_m3_s"], model, result.mislabel_probability
 
 
-def alternative(prob, cuts, model, mislabelled, mrr):
-    """The best backed cut: (rpm, depth, true limit, share of the plan's removal rate) or None."""
-    alt = best_backed(prob.setup, model, cuts, mislabelled=mislabelled)
+#: The doubt levels the best backed cut is tried at (a stable mark backs nothing when the
+#: posterior's probability that it is wrong exceeds the level; 1: every mark at face value).
+DOUBTS = (0.5, 0.2, 0.05, 1.0)
+
+
+def alternative(prob, cuts, model, mislabelled, mrr, max_doubt):
+    """The best backed cut: (rpm, depth, true limit, share of the plan's removal rate, the backing
+    mark's probability of being wrong) or None."""
+    alt = best_backed(prob.setup, model, cuts, mislabelled=mislabelled, max_doubt=max_doubt)
     if alt is None:
         return None
     cut = prob.setup.cut
     lim = float(true_limits(prob, [alt["spindle_rpm"]], [cut.radial_depth_m], [cut.milling == "down"])[0])
-    return alt["spindle_rpm"], alt["axial_depth_m"], lim, alt["mrr_m3_s"] / mrr
+    return alt["spindle_rpm"], alt["axial_depth_m"], lim, alt["mrr_m3_s"] / mrr, float(mislabelled[alt["backed_by"]])
 
 
 def one_seed(truth: str, seed: int, likelihood, flip: float = 0.05):
-    """The two plans of a seed: (rpm, depth, true limit, status, best backed cut with the
-    posterior's doubt, without) each, or None."""
+    """The two plans of a seed: (rpm, depth, true limit, status, the best backed cut at each of
+    :data:`DOUBTS`) each, or None."""
     prob = problem(truth, seed)
     ae, down = prob.setup.cut.radial_depth_m, prob.setup.cut.milling == "down"
     rng = np.random.default_rng(1000 + seed)
@@ -98,9 +104,8 @@ def one_seed(truth: str, seed: int, likelihood, flip: float = 0.05):
         n, ap, mrr, model, wrong = p
         lim = float(true_limits(prob, [n], [ae], [down])[0])
         status = plan_support(cuts, n, ap, ae, down, mislabelled=wrong)["status"]
-        alts = ((alternative(prob, cuts, model, wrong, mrr), alternative(prob, cuts, model, None, mrr))
-                if status != "backed" else (None, None))
-        rows.append((n, ap, lim, status, *alts))
+        alts = [alternative(prob, cuts, model, wrong, mrr, d) if status != "backed" else None for d in DOUBTS]
+        rows.append((n, ap, lim, status, alts))
         # the plan cut as a test, labelled by the truth
         cuts = cuts.concat(CutTable(np.array([n]), np.array([ap]), np.array([ae]), np.array([down]),
                                     np.array([CHATTER if ap >= lim else STABLE]), np.ones(1), np.full(1, np.nan),
@@ -110,9 +115,9 @@ def one_seed(truth: str, seed: int, likelihood, flip: float = 0.05):
 
 def _alt(a):
     if a is None:
-        return f"{'-':>7} {'-':>9} {'-':>8} {'-':>6} {'-':>5}"
-    n, depth, lim, share = a
-    return f"{n:7.0f} {1e3 * depth:9.2f} {1e3 * lim:8.2f} {str(depth < lim):>6} {100 * share:4.0f}%"
+        return f"{'-':>22}"
+    n, depth, lim, share, doubt = a
+    return f"{n:6.0f} {1e3 * depth:5.1f}{'' if depth < lim else '!'}{'' if depth >= lim else ' '} {100 * share:3.0f}% {doubt:4.2f}"
 
 
 def main(argv=None):
@@ -123,9 +128,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
     likelihood = _likelihood(build_parser().parse_args(["learn", "s", "--model", "m", "--cuts", "c"]))
     summary, alts = {}, {}
+    print("best backed cut at each doubt level: rpm, depth mm (! chatters), share of the plan's removal rate, "
+          "the backing mark's probability of being wrong")
     print(f"{'truth':>6} {'seed':>4} | {'plan':>6} {'rpm':>7} {'depth mm':>9} {'true mm':>8} {'stable':>6} "
-          f"{'status':>13} | {'alt rpm':>7} {'depth mm':>9} {'true mm':>8} {'stable':>6} {'share':>5} | "
-          f"{'alt* rpm':>7} {'depth mm':>9} {'true mm':>8} {'stable':>6} {'share':>5} | s")
+          f"{'status':>13} | " + " | ".join(f"{'doubt <= ' + format(d, 'g'):>22}" for d in DOUBTS) + " | s")
     for truth in args.truth:
         tally = summary.setdefault(truth, {})
         for seed in args.seeds:
@@ -134,25 +140,27 @@ def main(argv=None):
                 if row is None:
                     print(f"{truth:>6} {seed:>4} | {k:>6} no plan")
                     continue
-                n, depth, lim, status, alt, alt_naive = row
+                n, depth, lim, status, found = row
                 stable = depth < lim
                 tally[(status, stable)] = tally.get((status, stable), 0) + 1
-                for key, a in (("doubt", alt), ("face value", alt_naive)):
+                for d, a in zip(DOUBTS, found):
                     if a is not None:
-                        t = alts.setdefault(key, [0, 0, []])
+                        t = alts.setdefault(d, [0, 0, []])
                         t[0 if a[1] < a[2] else 1] += 1
                         t[2].append(a[3])
                 print(f"{truth:>6} {seed:>4} | {('first', 'second')[k]:>6} {n:7.0f} {1e3 * depth:9.2f} "
-                      f"{1e3 * lim:8.2f} {str(stable):>6} {status:>13} | {_alt(alt)} | {_alt(alt_naive)} | "
-                      f"{time.perf_counter() - t0:.0f}", flush=True)
+                      f"{1e3 * lim:8.2f} {str(stable):>6} {status:>13} | " + " | ".join(_alt(a) for a in found)
+                      + f" | {time.perf_counter() - t0:.0f}", flush=True)
     print("\nplans by status (truly stable / chattering):")
     for truth, tally in summary.items():
         parts = [f"{s}: {tally.get((s, True), 0)} / {tally.get((s, False), 0)}"
                  for s in ("backed", "contradicted", "extrapolated")]
         print(f"  {truth}: " + "; ".join(parts))
-    print("best backed cuts (truly stable / chattering; median share of the plan's removal rate):")
-    for key, (ok, bad, shares) in alts.items():
-        print(f"  {key}: {ok} / {bad}; {100 * np.median(shares):.0f} %")
+    print("best backed cuts by doubt level (truly stable / chattering; median share of the plan's removal rate):")
+    for d in DOUBTS:
+        if d in alts:
+            ok, bad, shares = alts[d]
+            print(f"  <= {d:g}: {ok} / {bad}; {100 * np.median(shares):.0f} %")
 
 
 if __name__ == "__main__":

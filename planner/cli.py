@@ -306,7 +306,8 @@ def _cmd_plan(args) -> int:
         if tests is not None:  # what the test cuts prove, beside what the posterior allows
             from planner.learn.plots import draw_best_backed, draw_test_cuts
 
-            draw_test_cuts(ax, tests.cuts, setup.cut.radial_depth_m, setup.cut.milling, mislabelled=tests.mislabelled)
+            draw_test_cuts(ax, tests.cuts, setup.cut.radial_depth_m, setup.cut.milling, mislabelled=tests.mislabelled,
+                           max_doubt=1.0 - args.probability)
             draw_best_backed(ax, (learned.get("support") or {}).get("best_backed"))
             ax.legend(loc="best", fontsize="small")
         save_figure(fig, args.output)

@@ -213,6 +213,23 @@ def test_plan_says_whether_the_test_cuts_back_its_cut(planned, capsys, tmp_path,
     assert "test cut: chatter" in labels and "test cut: stable" in labels
     diamond = lines[next(i for i, t in enumerate(labels) if t.startswith("best cut a test proves"))]
     assert np.allclose(np.ravel(diamond.get_xydata()), [alt["spindle_rpm"], 1e3 * alt["axial_depth_m"]])
+    assert alt["probability_mislabelled"] is None  # not in the file: counted
+    # a deep stable mark at 11 000 rpm doubted at 0.1 counts only where the plan's level allows a
+    # mark that doubt (max_doubt = 1 - P): not at the default P >= 0.95, at P >= 0.8; it then proves
+    # more than the plan removes, which is warned about (the posterior doubts it)
+    write_posterior_model(post, d / "doubted.yaml",
+                          cuts=far.concat(_cuts([(n, 0.9 * ap, D, True, CHATTER), (10000.0, 1e-3, D, True, STABLE),
+                                                 (11000.0, 40e-3, D, True, STABLE)])),
+                          mislabelled=[0.0, 0.0, 0.0, 0.0, 0.01, 0.1])
+    learned = _plan(capsys, d, "doubted.yaml")["learned"]
+    support = learned["support"]
+    assert support["max_doubt"] == 0.05 and support["best_backed"]["backed_by"] == 4
+    assert support["best_backed"]["probability_mislabelled"] == 0.01
+    assert not any("rests on cut" in w for w in learned["warnings"])
+    out = _plan(capsys, d, "doubted.yaml", "--probability", "0.8")
+    alt = out["learned"]["support"]["best_backed"]
+    assert out["learned"]["support"]["max_doubt"] == 0.2 and alt["backed_by"] == 5 and alt["share_of_plan"] > 1
+    assert any("rests on cut 5's mark alone" in w for w in out["learned"]["warnings"])
     main(["plan", str(d / "setup.yaml"), "--model", str(d / "chatter.yaml")])
     text = capsys.readouterr().out
     assert "test cuts within 1 % of its speed: contradicted" in text

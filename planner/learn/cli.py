@@ -8,6 +8,7 @@ prints.
 from __future__ import annotations
 
 import functools
+import math
 import time
 import warnings
 
@@ -308,7 +309,12 @@ def report_support(learned: dict, tests, setup, structure, planned: dict, *, met
     carry them) say about the planned cut (``planned``: the plan's JSON) at the setup's engagement:
     ``learned['support']`` (:mod:`.support`) and a warning unless one of them backs it. Where none
     does, ``support['best_backed']`` is the best plan the stable cuts prove (:func:`.support.best_backed`,
-    with ``structure`` for the other limits; its ``share_of_plan`` of the plan's removal rate)."""
+    with ``structure`` for the other limits; its ``share_of_plan`` of the plan's removal rate, and a
+    warning where it removes more than the plan: the posterior then doubts it).
+
+    A stable mark counts when the posterior's probability that it is wrong is at most one minus the
+    plan's level (``support['max_doubt']``, 0.05 at P >= 0.95): what a mark proves is trusted as far
+    as the plan's own probability is."""
     from .support import best_backed, plan_support, support_warning
 
     if tests is None:
@@ -318,16 +324,28 @@ def report_support(learned: dict, tests, setup, structure, planned: dict, *, met
             "whether a test cut backs the plan is not known")
         return
     rpm, ap, cut = planned["spindle_rpm"], planned["axial_depth_m"], setup.cut
+    doubt = round(1.0 - learned["probability"], 12)
     support = learned["support"] = plan_support(tests.cuts, rpm, ap, cut.radial_depth_m, cut.milling == "down",
-                                                mislabelled=tests.mislabelled)
+                                                mislabelled=tests.mislabelled, max_doubt=doubt)
+    support["max_doubt"] = doubt
+    warnings_ = learned.setdefault("warnings", [])
     if support["status"] != "backed":
-        alt = best_backed(setup, structure, tests.cuts, mislabelled=tests.mislabelled, method=method)
+        alt = best_backed(setup, structure, tests.cuts, mislabelled=tests.mislabelled, max_doubt=doubt, method=method)
         if alt is not None:
+            i = alt["backed_by"]
+            wrong = float(tests.mislabelled[i])
             alt["share_of_plan"] = alt["mrr_m3_s"] / planned["mrr_m3_s"]
+            alt["probability_mislabelled"] = wrong if math.isfinite(wrong) else None
+            if alt["share_of_plan"] > 1.0:
+                warnings_.append(
+                    f"the best cut a stable test cut proves ({alt['spindle_rpm']:.0f} rpm at "
+                    f"{1e3 * alt['axial_depth_m']:.2f} mm) removes {100 * alt['share_of_plan']:.0f} % of the plan's rate: "
+                    f"the posterior gives it P(stable) under {learned['probability']:g}, so it rests on cut {i}'s mark "
+                    "alone; cut it again before relying on it")
         support["best_backed"] = alt
     text = support_warning(support, tests.cuts, rpm, ap)
     if text:
-        learned.setdefault("warnings", []).append(text)
+        warnings_.append(text)
 
 
 def chance_constraint(model_path, setup, *, probability: float = 0.95):

@@ -37,27 +37,28 @@ def plot_probability_lobes(lobes, ax=None, *, cuts=None, mislabelled=None):
     return fig, ax
 
 
-def draw_test_cuts(ax, cuts, radial_depth_m: float, milling: str, *, mislabelled=None) -> None:
+def draw_test_cuts(ax, cuts, radial_depth_m: float, milling: str, *, mislabelled=None,
+                   max_doubt: float | None = None) -> None:
     """The test ``cuts`` at an engagement (radial depth within :data:`.support.RADIAL_TOLERANCE`,
     the milling direction) on depth (mm) over speed (rpm) axes: o stable, x chatter, ? uncertain;
-    a stable mark the posterior takes for wrong (``mislabelled`` above its suspect level) in grey."""
-    from .support import RADIAL_TOLERANCE
+    a stable mark the posterior doubts (``mislabelled`` above ``max_doubt``, by default its suspect
+    level: more likely wrong than right) in grey."""
+    from .support import RADIAL_TOLERANCE, doubted_marks
     from .update import SUSPECT_LABEL
 
     if cuts is None or not cuts.n_cuts:
         return
+    name = "stable, taken for wrong" if max_doubt is None else f"stable, doubted (wrong with P > {max_doubt:g})"
     same = ((np.abs(np.asarray(cuts.radial_depth_m) / radial_depth_m - 1.0) <= RADIAL_TOLERANCE)
             & (cuts.down == (milling == "down")))
-    doubted = (np.zeros(cuts.n_cuts, bool) if mislabelled is None
-               else np.nan_to_num(np.asarray(mislabelled, dtype=float)) > SUSPECT_LABEL)
-    for sel, marker, colour, name in ((same & (cuts.outcome == STABLE) & ~doubted, "o", "k", "stable"),
-                                      (same & (cuts.outcome == STABLE) & doubted, "o", "0.6",
-                                       "stable, taken for wrong"),
+    doubted = doubted_marks(mislabelled, cuts.n_cuts, SUSPECT_LABEL if max_doubt is None else max_doubt)
+    for sel, marker, colour, label in ((same & (cuts.outcome == STABLE) & ~doubted, "o", "k", "stable"),
+                                      (same & (cuts.outcome == STABLE) & doubted, "o", "0.6", name),
                                       (same & (cuts.outcome == CHATTER), "x", "k", "chatter"),
                                       (same & (cuts.outcome == UNCERTAIN), "$?$", "k", "uncertain")):
         if sel.any():
             ax.scatter(cuts.spindle_rpm[sel], 1e3 * cuts.axial_depth_m[sel], marker=marker, c=colour, s=30,
-                       label=f"test cut: {name}", zorder=4)
+                       label=f"test cut: {label}", zorder=4)
 
 
 def draw_best_backed(ax, alt: dict | None) -> None:

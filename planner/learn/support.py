@@ -24,10 +24,13 @@ steeply between lobes, so "near" is within :data:`SPEED_TOLERANCE` and :data:`RA
 
 Marks only: ``uncertain`` marks (near the boundary by definition) and detected outcomes weighted
 under :data:`MIN_WEIGHT` (a detection less sure than not) neither back nor contradict. A stable mark
-that the posterior takes for wrong (probability above :data:`~.update.SUSPECT_LABEL`, the
-``suspect_labels`` of ``learn``) backs nothing either: with 5 % of the marks flipped, a chatter
-cut far above the limit marked stable would otherwise back any plan below it. A chatter mark
-contradicts whatever the posterior thinks of it: that is the point of the check.
+that the posterior doubts backs nothing either: a chatter cut far above the limit marked stable
+would otherwise back any plan below it. The functions' default level is :data:`~.update.SUSPECT_LABEL`
+(the ``suspect_labels`` of ``learn``: more likely wrong than right); ``plan`` trusts a mark only as
+far as its own level, a probability of being wrong at most ``1 - P`` (0.05 at P >= 0.95: on the
+benchmark with a fifth of the marks flipped, the level 0.5 let a flipped mark of probability 0.48
+back a cut that chattered). A chatter mark contradicts whatever the posterior thinks of it: that
+is the point of the check.
 
 Where the plan is not backed, :func:`best_backed` plans again on the test cuts alone: the largest
 removal rate at the speed and up to the depth of a stable test cut (at the plan's engagement), under
@@ -42,7 +45,7 @@ from .likelihood import CHATTER, STABLE
 from .outcomes_io import CutTable
 from .update import SUSPECT_LABEL
 
-__all__ = ["plan_support", "support_warning", "best_backed", "SPEED_TOLERANCE", "RADIAL_TOLERANCE", "MIN_WEIGHT"]
+__all__ = ["plan_support", "support_warning", "best_backed", "doubted_marks", "SPEED_TOLERANCE", "RADIAL_TOLERANCE", "MIN_WEIGHT"]
 
 #: Largest relative speed difference between a test cut and the plan for the cut to speak for the
 #: plan: a test cut of the plan's own speed, typed by hand to two or three significant digits, is
@@ -58,38 +61,47 @@ RADIAL_TOLERANCE = 0.02
 MIN_WEIGHT = 0.5
 
 
-def _sure(cuts: CutTable, mislabelled, radial_depth_m: float, down: bool,
-          radial_tolerance: float) -> tuple[np.ndarray, np.ndarray]:
-    """Masks of the sure stable marks (not suspect) and sure chatter marks at the engagement."""
+def doubted_marks(mislabelled, n_cuts: int, max_doubt: float = SUSPECT_LABEL) -> np.ndarray:
+    """Mask of the marks whose probability of being wrong (``mislabelled``; NaN or None: not known,
+    taken as sure) exceeds ``max_doubt``."""
+    if mislabelled is None:
+        return np.zeros(n_cuts, dtype=bool)
+    return np.nan_to_num(np.asarray(mislabelled, dtype=float)) > max_doubt
+
+
+def _sure(cuts: CutTable, mislabelled, radial_depth_m: float, down: bool, radial_tolerance: float,
+          max_doubt: float = SUSPECT_LABEL) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of the sure stable marks (not doubted) and sure chatter marks at the engagement."""
     ae = np.asarray(cuts.radial_depth_m, dtype=float)
     at = ((np.asarray(cuts.weight, dtype=float) >= MIN_WEIGHT) & (np.asarray(cuts.down, dtype=bool) == bool(down))
           & (np.abs(ae / float(radial_depth_m) - 1.0) <= radial_tolerance))
-    doubted = (np.zeros(cuts.n_cuts, dtype=bool) if mislabelled is None
-               else np.nan_to_num(np.asarray(mislabelled, dtype=float)) > SUSPECT_LABEL)
+    doubted = doubted_marks(mislabelled, cuts.n_cuts, max_doubt)
     return at & (cuts.outcome == STABLE) & ~doubted, at & (cuts.outcome == CHATTER)
 
 
 def plan_support(cuts: CutTable, spindle_rpm: float, axial_depth_m: float, radial_depth_m: float,
-                 down: bool, *, mislabelled=None, speed_tolerance: float = SPEED_TOLERANCE,
+                 down: bool, *, mislabelled=None, max_doubt: float = SUSPECT_LABEL,
+                 speed_tolerance: float = SPEED_TOLERANCE,
                  radial_tolerance: float = RADIAL_TOLERANCE) -> dict:
     """The test cuts that back or contradict a planned cut (module notes).
 
     ``mislabelled``: the posterior's probability that each mark is wrong (NaN or None: not known);
-    a stable mark above :data:`~.update.SUSPECT_LABEL` backs nothing.
+    a stable mark above ``max_doubt`` backs nothing.
 
     Returns
     -------
     dict
         ``status`` (``backed``, ``contradicted`` or ``extrapolated``; contradicted wins over
         backed), ``speed_tolerance``, ``radial_tolerance``, ``backed_by`` and ``contradicted_by``
-        (indices into ``cuts``), ``doubted`` (stable marks that would back the plan but look wrong
-        to the posterior), ``nearby`` (how many sure marks lie at the plan's milling direction,
+        (indices into ``cuts``), ``doubted`` (stable marks that would back the plan but which the
+        posterior doubts beyond ``max_doubt``), ``nearby`` (how many sure marks lie at the plan's milling direction,
         speed and width) and ``deepest_stable_nearby_m`` (the deepest sure stable one of those;
         None without one).
     """
     rpm, ap = (np.asarray(getattr(cuts, k), dtype=float) for k in ("spindle_rpm", "axial_depth_m"))
     at_speed = np.abs(rpm / float(spindle_rpm) - 1.0) <= speed_tolerance
-    stable, chatter = (at_speed & m for m in _sure(cuts, mislabelled, radial_depth_m, down, radial_tolerance))
+    stable, chatter = (at_speed & m for m in _sure(cuts, mislabelled, radial_depth_m, down, radial_tolerance,
+                                                   max_doubt))
     # a relative slack of 1e-9: a test cut written back from the plan's own numbers is the plan
     deep_enough = ap >= axial_depth_m * (1 - 1e-9)
     backed = stable & deep_enough
@@ -109,7 +121,8 @@ def plan_support(cuts: CutTable, spindle_rpm: float, axial_depth_m: float, radia
 _SPEED_SLIVER = 1e-4
 
 
-def best_backed(setup, structure, cuts: CutTable, *, mislabelled=None, method: str = "auto",
+def best_backed(setup, structure, cuts: CutTable, *, mislabelled=None, max_doubt: float = SUSPECT_LABEL,
+                method: str = "auto",
                 radial_tolerance: float = RADIAL_TOLERANCE) -> dict | None:
     """The largest removal rate the stable test cuts prove (module notes): for each sure stable
     mark at the setup's engagement (milling direction, radial depth within ``radial_tolerance``)
@@ -132,7 +145,8 @@ def best_backed(setup, structure, cuts: CutTable, *, mislabelled=None, method: s
     from planner.optimize import plan
 
     lim = setup.limits
-    stable, _ = _sure(cuts, mislabelled, setup.cut.radial_depth_m, setup.cut.milling == "down", radial_tolerance)
+    stable, _ = _sure(cuts, mislabelled, setup.cut.radial_depth_m, setup.cut.milling == "down", radial_tolerance,
+                      max_doubt)
     rpm, ap = (np.asarray(getattr(cuts, k), dtype=float) for k in ("spindle_rpm", "axial_depth_m"))
     lo, hi = lim.spindle_rpm
     (d_lo, d_hi) = lim.axial_depth_m
@@ -152,7 +166,8 @@ def best_backed(setup, structure, cuts: CutTable, *, mislabelled=None, method: s
         if not result.success:
             continue
         support = plan_support(cuts, result.spindle_rpm, result.axial_depth_m, setup.cut.radial_depth_m,
-                               setup.cut.milling == "down", mislabelled=mislabelled, radial_tolerance=radial_tolerance)
+                               setup.cut.milling == "down", mislabelled=mislabelled, max_doubt=max_doubt,
+                               radial_tolerance=radial_tolerance)
         if support["status"] != "backed":
             continue
         if best is None or result.mrr_m3_s > best["mrr_m3_s"]:
@@ -178,8 +193,9 @@ def support_warning(support: dict, cuts: CutTable, spindle_rpm: float, axial_dep
                 else "none was stable there" if support["nearby"] else "none was cut there")
         doubted = support.get("doubted") or []
         if doubted:
-            seen += (f"; cut(s) {', '.join(map(str, doubted))} read stable there but the posterior takes the "
-                     "mark(s) for wrong (suspect_labels of learn): recut to back the plan")
+            seen += (f"; cut(s) {', '.join(map(str, doubted))} read stable there, but the posterior doubts the "
+                     f"mark(s) (probability of being wrong above {support.get('max_doubt', SUSPECT_LABEL):g}): "
+                     "recut to back the plan")
         alt = support.get("best_backed")
         best = (f"; the best cut the stable test cuts prove is {alt['spindle_rpm']:.0f} rpm at "
                 f"{1e3 * alt['axial_depth_m']:.2f} mm, {100 * alt['share_of_plan']:.0f} % of the plan's removal rate "
