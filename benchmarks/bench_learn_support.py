@@ -117,7 +117,8 @@ def _alt(a):
     if a is None:
         return f"{'-':>22}"
     n, depth, lim, share, doubt = a
-    return f"{n:6.0f} {1e3 * depth:5.1f}{'' if depth < lim else '!'}{'' if depth >= lim else ' '} {100 * share:3.0f}% {doubt:4.2f}"
+    mark = "!" if depth >= lim else " "
+    return f"{n:6.0f} {1e3 * depth:5.1f}{mark} {100 * share:3.0f}% {doubt:4.2f}"
 
 
 def main(argv=None):

@@ -101,6 +101,11 @@ def test_the_best_backed_cut_is_the_largest_removal_rate_the_sure_stable_cuts_pr
     assert best["backed_by"] == 1 and best["mrr_m3_s"] == pytest.approx(_slot_mrr(setup, 11800.0, 2.4e-3, fz), rel=2e-4)
     # without the posterior's doubt the 20 mm mark would be taken at face value
     assert best_backed(setup, problem.prior, _cuts(rows))["backed_by"] == 3
+    # a cut at either end of the setup's speed range is planned inside it
+    for n in setup.limits.spindle_rpm:
+        best = best_backed(setup, problem.prior, _cuts([(n, 3e-3, D, True, STABLE)]))
+        assert setup.limits.spindle_rpm[0] <= best["spindle_rpm"] <= setup.limits.spindle_rpm[1]
+        assert abs(best["spindle_rpm"] / n - 1) <= 2e-4
     # a power limit binds. The mean cutting power of a full slot, z teeth: the mean tangential force
     # z a (2 Ktc fz + pi Kte) / (2 pi) times the edge speed pi D n / 60 (the helix does not change
     # the mean). At a fixed power the removal rate n a fz grows with fz (the edge term costs power

@@ -339,7 +339,8 @@ def report_support(learned: dict, tests, setup, structure, planned: dict, *, met
             if alt["share_of_plan"] > 1.0:
                 warnings_.append(
                     f"the best cut a stable test cut proves ({alt['spindle_rpm']:.0f} rpm at "
-                    f"{1e3 * alt['axial_depth_m']:.2f} mm) removes {100 * alt['share_of_plan']:.0f} % of the plan's rate: "
+                    f"{1e3 * alt['axial_depth_m']:.2f} mm) removes {100 * alt['share_of_plan']:.0f} % of the plan's "
+                    "rate: "
                     f"the posterior gives it P(stable) under {learned['probability']:g}, so it rests on cut {i}'s mark "
                     "alone; cut it again before relying on it")
         support["best_backed"] = alt

@@ -45,7 +45,8 @@ from .likelihood import CHATTER, STABLE
 from .outcomes_io import CutTable
 from .update import SUSPECT_LABEL
 
-__all__ = ["plan_support", "support_warning", "best_backed", "doubted_marks", "SPEED_TOLERANCE", "RADIAL_TOLERANCE", "MIN_WEIGHT"]
+__all__ = ["plan_support", "support_warning", "best_backed", "doubted_marks", "SPEED_TOLERANCE", "RADIAL_TOLERANCE",
+           "MIN_WEIGHT"]
 
 #: Largest relative speed difference between a test cut and the plan for the cut to speak for the
 #: plan: a test cut of the plan's own speed, typed by hand to two or three significant digits, is
@@ -116,8 +117,9 @@ def plan_support(cuts: CutTable, spindle_rpm: float, axial_depth_m: float, radia
             "deepest_stable_nearby_m": float(ap[stable].max()) if stable.any() else None}
 
 
-#: Relative width of the speed range ``best_backed`` plans in, below the test cut's own speed (the
-#: planner needs a range; the answer is at the cut's speed to this precision).
+#: Relative width of the speed range ``best_backed`` plans in, below the test cut's own speed (above
+#: it at the setup's lowest speed; the planner needs a range, and the answer is at the cut's speed to
+#: this precision).
 _SPEED_SLIVER = 1e-4
 
 
@@ -157,9 +159,11 @@ def best_backed(setup, structure, cuts: CutTable, *, mislabelled=None, max_doubt
     for i in sorted(candidates, key=lambda k: -bound[k]):
         if best is not None and bound[i] <= best["mrr_m3_s"]:
             break
-        depth = min(float(ap[i]), float(d_hi))
-        at = replace(setup, limits=replace(lim, spindle_rpm=(float(rpm[i]) * (1 - _SPEED_SLIVER), float(rpm[i])),
-                                           axial_depth_m=(float(d_lo), depth)))
+        depth, n = min(float(ap[i]), float(d_hi)), float(rpm[i])
+        # a sliver of speed at the cut's, inside the setup's range (above it at the range's low end)
+        below = n * (1 - _SPEED_SLIVER)
+        speeds = (below, n) if below >= lo else (n, min(hi, n * (1 + _SPEED_SLIVER)))
+        at = replace(setup, limits=replace(lim, spindle_rpm=speeds, axial_depth_m=(float(d_lo), depth)))
         # the cut's own depth is the stability limit (strictly above it: the plan may reach it)
         result = plan(at, structure, method=method,
                       stability_limit=lambda n, a=depth: np.full(np.shape(n), a * (1 + 1e-6)))
