@@ -166,7 +166,7 @@ def best_backed(setup, structure, cuts: CutTable, *, mislabelled=None, max_doubt
         at = replace(setup, limits=replace(lim, spindle_rpm=speeds, axial_depth_m=(float(d_lo), depth)))
         # the cut's own depth is the stability limit (strictly above it: the plan may reach it)
         result = plan(at, structure, method=method,
-                      stability_limit=lambda n, a=depth: np.full(np.shape(n), a * (1 + 1e-6)))
+                      stability_limit=lambda speed, a=depth: np.full(np.shape(speed), a * (1 + 1e-6)))
         if not result.success:
             continue
         support = plan_support(cuts, result.spindle_rpm, result.axial_depth_m, setup.cut.radial_depth_m,
