@@ -303,13 +303,19 @@ def _cmd_plan(args) -> int:
         payload["learned"] = learned
     if args.output:
         fig, ax = result.plot(limit_label=None if learned is None else f"P(stable) >= {args.probability:g}")
-        if tests is not None:  # what the test cuts prove, beside what the posterior allows
-            from planner.learn.plots import draw_best_backed, draw_test_cuts
+        if learned is not None:  # where the chance limit holds, and what the test cuts prove beside it
+            from planner.learn.plots import draw_best_backed, draw_test_cuts, shade_untabulated
 
-            draw_test_cuts(ax, tests.cuts, setup.cut.radial_depth_m, setup.cut.milling, mislabelled=tests.mislabelled,
-                           max_doubt=1.0 - args.probability)
-            draw_best_backed(ax, (learned.get("support") or {}).get("best_backed"))
-            ax.legend(loc="best", fontsize="small")
+            shade_untabulated(ax, learned["rpm_range"], setup.limits.spindle_rpm)
+            if tests is not None:
+                draw_test_cuts(ax, tests.cuts, setup.cut.radial_depth_m, setup.cut.milling,
+                               mislabelled=tests.mislabelled, max_doubt=1.0 - args.probability)
+                draw_best_backed(ax, (learned.get("support") or {}).get("best_backed"))
+            # beside the axes: inside, the longer legend hides test cuts
+            w, h = fig.get_size_inches()
+            fig.set_size_inches(w * 1.4, h)
+            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+            fig.tight_layout()
         save_figure(fig, args.output)
 
     def human(p):

@@ -304,3 +304,20 @@ def test_the_figures_grey_the_stable_marks_the_posterior_takes_for_wrong():
     assert drawn == {"test cut: stable": [[10000.0, 3.0], [9000.0, 4.0]],
                      "test cut: stable, taken for wrong": [[11000.0, 20.0]],
                      "test cut: chatter": [[12000.0, 5.0]]}
+
+
+def test_the_plan_figure_greys_the_speeds_where_the_chance_limit_was_not_tabulated():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from planner.learn.plots import shade_untabulated
+
+    fig, ax = plt.subplots()
+    shade_untabulated(ax, (5000.0, 20000.0), (500.0, 24000.0))  # both ends not tabulated
+    shade_untabulated(ax, (500.0, 24000.0), (500.0, 24000.0))   # the whole range: nothing
+    spans = [p.get_x() for p in ax.patches], [p.get_x() + p.get_width() for p in ax.patches]
+    labels = [p.get_label() for p in ax.patches if not p.get_label().startswith("_")]
+    plt.close(fig)
+    assert spans == ([500.0, 20000.0], [5000.0, 24000.0]) and len(labels) == 1

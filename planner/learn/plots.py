@@ -6,7 +6,7 @@ import numpy as np
 
 from .likelihood import CHATTER, STABLE, UNCERTAIN
 
-__all__ = ["plot_probability_lobes", "draw_test_cuts", "draw_best_backed"]
+__all__ = ["plot_probability_lobes", "draw_test_cuts", "draw_best_backed", "shade_untabulated"]
 
 
 def plot_probability_lobes(lobes, ax=None, *, cuts=None, mislabelled=None):
@@ -59,6 +59,16 @@ def draw_test_cuts(ax, cuts, radial_depth_m: float, milling: str, *, mislabelled
         if sel.any():
             ax.scatter(cuts.spindle_rpm[sel], 1e3 * cuts.axial_depth_m[sel], marker=marker, c=colour, s=30,
                        label=f"test cut: {label}", zorder=4)
+
+
+def shade_untabulated(ax, rpm_range, setup_rpm) -> None:
+    """Grey the speeds of ``setup_rpm`` outside ``rpm_range``, where ``plan``'s chance limit was not
+    tabulated (``learned.rpm_range``: no cut there could beat the plan) and reads 0."""
+    lo, hi = (float(v) for v in setup_rpm)
+    a, b = (float(v) for v in rpm_range)
+    spans = [(x, y) for x, y in ((lo, a), (b, hi)) if y > x]
+    for k, (x, y) in enumerate(spans):
+        ax.axvspan(x, y, color="0.9", zorder=0, label="_nolegend_" if k else "not tabulated: no cut there beats the plan")
 
 
 def draw_best_backed(ax, alt: dict | None) -> None:
