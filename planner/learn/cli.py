@@ -330,7 +330,9 @@ def report_support(learned: dict, tests, setup, structure, planned: dict, *, met
     support["max_doubt"] = doubt
     warnings_ = learned.setdefault("warnings", [])
     if support["status"] != "backed":
+        t0 = time.perf_counter()
         alt = best_backed(setup, structure, tests.cuts, mislabelled=tests.mislabelled, max_doubt=doubt, method=method)
+        learned.setdefault("timings_s", {})["best_backed"] = time.perf_counter() - t0
         if alt is not None:
             i = alt["backed_by"]
             wrong = float(tests.mislabelled[i])
