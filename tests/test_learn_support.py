@@ -14,7 +14,7 @@ from oma.modal_io import write_modal_model
 from planner.cli import main
 from planner.learn.likelihood import CHATTER, STABLE, UNCERTAIN
 from planner.learn.outcomes_io import CutTable
-from planner.learn.posterior_io import read_posterior_cuts, write_posterior_model
+from planner.learn.posterior_io import read_posterior, read_posterior_cuts, write_posterior_model
 from planner.learn.support import SPEED_TOLERANCE, best_backed, plan_support
 from planner.learn.synthetic import tool_problem, true_limits
 from stability.setup_io import write_setup
@@ -257,6 +257,13 @@ def test_malformed_cuts_in_a_posterior_file_are_a_one_line_error_and_nothing_is_
     bad.write_text(text.replace("milling: up", "milling: sideways"))
     with pytest.raises(ModelError, match=r"x_posterior.cuts\[2\].milling"):
         read_posterior_cuts(bad)
+    for p in ("1.5", "wrong", "true"):  # a probability of being wrong must be one
+        odd = d / "odd.yaml"
+        write_posterior_model(read_posterior(d / "far.yaml"), odd, cuts=read_posterior_cuts(d / "far.yaml").cuts,
+                              mislabelled=[0.01, 0.02, 0.03])
+        odd.write_text(odd.read_text().replace("probability_mislabelled: 0.02", f"probability_mislabelled: {p}"))
+        with pytest.raises(ModelError, match=r"x_posterior.cuts\[1\].probability_mislabelled"):
+            read_posterior_cuts(odd)
     code = main(["plan", str(d / "setup.yaml"), "--model", str(bad), "-o", str(tmp_path / "plan.png")])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "x_posterior.cuts[2].milling" in err
