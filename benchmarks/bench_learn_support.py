@@ -18,8 +18,8 @@ more mode at 1450 Hz along x).
 
 Run: ``PYTHONPATH=. python benchmarks/bench_learn_support.py --truth exact two [--seeds 1 2 3 4 5 6]
 [--flip 0.05]`` (the share of the random cuts' marks flipped)
-(about 2.5 min per seed and truth on 2 cores). docs/learn.md, session 28, has seeds 1-6 of
-``exact`` and ``two``.
+(1-2 min per seed and truth on 2 cores: the default 6 seeds of both truths in 15-20 min, session
+29). docs/learn.md, sessions 28-29, has seeds 1-6 of ``exact`` and ``two``.
 """
 
 from __future__ import annotations
