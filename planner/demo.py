@@ -250,6 +250,70 @@ def _step_plan(example: Example, report: Report) -> None:
     report.summary["plan"] = result.to_dict()
 
 
+def _robomill_json(argv: list[str]) -> dict:
+    """``robomill ARGV --json`` run in-process, its JSON (a failure raises with its stderr)."""
+    import contextlib
+    import io
+    import json
+
+    from planner.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([*argv, "--json"])
+    if code != 0:
+        raise RuntimeError(f"robomill {' '.join(argv)} exited {code}: {err.getvalue().strip()}")
+    return json.loads(out.getvalue())
+
+
+def _step_learn(example: Example, report: Report) -> None:
+    """The example's 12 test cuts learned (``robomill learn -o``), and the plan at P(stable) >= 0.95
+    with that posterior (``robomill plan --model``): what the cuts themselves back, and the best cut
+    they prove. The commands a user would type, run in-process; the posterior is kept beside the
+    report for them."""
+    from planner.learn.outcomes_io import read_cuts
+
+    d = example.directory
+    posterior = report.directory / "posterior.yaml"
+    learned = _robomill_json(["learn", str(d / "setup.yaml"), "--model", str(d / "models" / "planning_model.yaml"),
+                              "--cuts", str(d / "cuts.csv"), "-o", str(posterior)])
+    figure = report.figure_dir / "plan_learned.png"
+    planned = _robomill_json(["plan", str(d / "setup.yaml"), "--model", str(posterior), "-o", str(figure)])
+    sec = report.section("Learning from test cuts")
+    sec.text(f"<code>robomill learn</code> on the example's {read_cuts(d / 'cuts.csv', tool=example.setup.tool).n_cuts} "
+             "test cuts "
+             "(cuts.csv) with the planning model as the prior: cross-validated accuracy "
+             f"{learned['accuracy_before']:.2f} before, {learned['accuracy_after']:.2f} after; the parameter the "
+             f"cuts moved most against its prior: {learned['cause']}. The posterior is written to posterior.yaml.")
+    info = planned.get("learned") or {}
+    support = info.get("support") or {}
+    if planned["success"]:
+        check = info.get("check") or {}
+        sec.text(f"<code>robomill plan --model posterior.yaml</code> (P(stable) >= {info.get('probability', 0.95):g}): "
+                 f"<b>{planned['spindle_rpm']:.0f} rpm, axial depth {1e3 * planned['axial_depth_m']:.2f} mm, feed "
+                 f"{1e3 * planned['feed_per_tooth_m']:.3f} mm/tooth</b>: {1e6 * planned['mrr_m3_s']:.2f} cm^3/s; "
+                 f"P(stable) from {check.get('samples', 0)} posterior samples solved directly "
+                 f"{check.get('probability_stable', float('nan')):.3f}. Test cuts at its speed: "
+                 f"{support.get('status', 'not known')}.")
+        alt = support.get("best_backed")
+        if alt:
+            sec.text(f"Best cut a stable test cut proves (cut {alt['backed_by']}): {alt['spindle_rpm']:.0f} rpm, "
+                     f"{1e3 * alt['axial_depth_m']:.2f} mm, {1e3 * alt['feed_per_tooth_m']:.3f} mm/tooth: "
+                     f"{1e6 * alt['mrr_m3_s']:.2f} cm^3/s, {100 * alt['share_of_plan']:.0f} % of the plan's removal rate.")
+    else:
+        sec.text(f"<span class='warn'>No plan with the posterior ({planned['status']}): {planned['message']}</span>")
+    for w in learned["warnings"] + info.get("warnings", []):
+        sec.text(f"<span class='warn'>warning: {w}</span>")
+    if figure.exists():
+        sec.figure(f"figures/{figure.name}", "The plan at P(stable) >= 0.95 with the test cuts at its engagement "
+                   "and the best cut they prove")
+    report.summary["learn"] = {"accuracy_before": learned["accuracy_before"], "accuracy_after": learned["accuracy_after"],
+                               "cause": learned["cause"], "posterior": str(posterior),
+                               "plan": {k: planned.get(k) for k in ("success", "spindle_rpm", "axial_depth_m",
+                                                                    "feed_per_tooth_m", "mrr_m3_s")},
+                               "support": support or None}
+
+
 def _step_check(example: Example, report: Report) -> None:
     """The toolpath across the six identified poses, point by point."""
     from planner.check import check_toolpath
@@ -381,7 +445,7 @@ def run_demo(output: Path, *, example_dir: Path = EXAMPLE_DIR, progress: bool = 
     t0 = time.perf_counter()
     example = load_example(example_dir)
     report = Report("robomill demo: KR500 milling acetal (simulated example cell)", output)
-    steps = [_step_records, _step_identify, _step_shortcuts, _step_lobes, _step_plan, _step_check]
+    steps = [_step_records, _step_identify, _step_shortcuts, _step_lobes, _step_plan, _step_learn, _step_check]
     for step in steps:
         log.info("demo: %s", step.__name__)
         step(example, report)

@@ -6,7 +6,11 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-from planner.demo import run_demo  # noqa: E402
+from planner.demo import EXAMPLE_DIR, run_demo  # noqa: E402
+from planner.learn.likelihood import STABLE  # noqa: E402
+from planner.learn.outcomes_io import read_cuts  # noqa: E402
+from planner.learn.posterior_io import read_posterior  # noqa: E402
+from stability.setup_io import read_setup  # noqa: E402
 
 
 def test_demo_runs_the_whole_job_and_writes_its_report(tmp_path):
@@ -14,7 +18,7 @@ def test_demo_runs_the_whole_job_and_writes_its_report(tmp_path):
     report = tmp_path / "out" / "report.html"
     assert summary["report"] == str(report) and report.stat().st_size > 10_000
     on_disk = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert set(on_disk) >= {"records", "identification", "lobes", "plan", "check"}
+    assert set(on_disk) >= {"records", "identification", "lobes", "plan", "learn", "check"}
     # the 20 s record identified by the default method is trusted and close to the hammer test
     long = on_disk["identification"]["cut_long/default"]
     assert long["trusted"] and max(long["hammer_agreement"].values()) < 0.10
@@ -34,3 +38,16 @@ def test_demo_runs_the_whole_job_and_writes_its_report(tmp_path):
     assert robot["check_counts"]["unreachable"] == 0 and robot["unreachable"] == []
     assert robot["min_margin_after"] >= robot["min_margin_before"] * (1 - 1e-9)
     assert max(robot["leave_one_out_frequency_error"]) < 0.05
+    # learning from the example's test cuts: the posterior kept beside the report, the plan with it
+    # verified and within the setup's bounds, and the best cut the cuts prove backed by a stable
+    # mark of the example's cuts.csv at its speed, at least as deep, and under the plan's removal rate
+    learn = on_disk["learn"]
+    assert learn["plan"]["success"] and 5e-4 <= learn["plan"]["axial_depth_m"] <= 0.03
+    assert read_posterior(learn["posterior"]) is not None
+    alt = learn["support"]["best_backed"]
+    if learn["support"]["status"] != "backed":
+        cuts = read_cuts(EXAMPLE_DIR / "cuts.csv", tool=read_setup(EXAMPLE_DIR / "setup.yaml").tool)
+        i = alt["backed_by"]
+        assert cuts.outcome[i] == STABLE and abs(cuts.spindle_rpm[i] / alt["spindle_rpm"] - 1) < 2e-4
+        assert alt["axial_depth_m"] <= cuts.axial_depth_m[i] * (1 + 1e-9) and 0 < alt["share_of_plan"] < 1
+    assert (tmp_path / "out" / "figures" / "plan_learned.png").stat().st_size > 10_000
