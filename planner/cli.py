@@ -344,7 +344,9 @@ def _cmd_plan(args) -> int:
                          f"{1e6 * alt['mrr_m3_s']:.2f} cm^3/s ({100 * alt['share_of_plan']:.0f} % of the plan's; "
                          f"cut {alt['backed_by']})")
             elif support["status"] != "backed":
-                text += "\nno stable test cut at the plan's engagement proves a cut within the setup's limits"
+                text += ("\nno sure stable test cut (marks the posterior takes for wrong with P > "
+                         f"{support.get('max_doubt', 0.5):g} left out) proves a cut at the plan's engagement within the "
+                         "setup's limits")
         return "\n".join([text] + [f"warning: {w}" for w in learned_.get("warnings", [])])
 
     emit(args, payload, human)

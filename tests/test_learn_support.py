@@ -192,6 +192,8 @@ def test_plan_says_whether_the_test_cuts_back_its_cut(planned, capsys, tmp_path,
     assert any("extrapolation from the cuts" in w and "none was cut there" in w for w in out["learned"]["warnings"])
     # no stable cut at the setup's engagement within its speed range (9-12 krpm) proves anything
     assert support["best_backed"] is None
+    main(["plan", str(d / "setup.yaml"), "--model", str(d / "far.yaml")])
+    assert "no sure stable test cut (marks the posterior takes for wrong with P > 0.05 left out)" in capsys.readouterr().out
     # the plan cut as a test and found stable: backed, the warning gone; the same plan (the cuts
     # change nothing but the support)
     write_posterior_model(post, d / "backed.yaml", cuts=far.concat(_cuts([(round(n, -1), ap * 1.001, D, True, STABLE)])))
