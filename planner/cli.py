@@ -305,11 +305,12 @@ def _cmd_plan(args) -> int:
         fig, ax = result.plot(limit_label=None if learned is None else f"P(stable) >= {args.probability:g}")
         if learned is not None:  # where the chance limit holds, and what the test cuts prove beside it
             from planner.learn.plots import draw_best_backed, draw_test_cuts, shade_untabulated
+            from planner.learn.support import doubt_level
 
             shade_untabulated(ax, learned["rpm_range"], setup.limits.spindle_rpm)
             if tests is not None:
                 draw_test_cuts(ax, tests.cuts, setup.cut.radial_depth_m, setup.cut.milling,
-                               mislabelled=tests.mislabelled, max_doubt=1.0 - args.probability)
+                               mislabelled=tests.mislabelled, max_doubt=doubt_level(args.probability))
                 draw_best_backed(ax, (learned.get("support") or {}).get("best_backed"))
             # beside the axes: inside, the longer legend hides test cuts
             w, h = fig.get_size_inches()
@@ -339,10 +340,9 @@ def _cmd_plan(args) -> int:
                      + (f" (cut {', '.join(map(str, support['backed_by']))})" if support["status"] == "backed" else ""))
             alt = support.get("best_backed")
             if alt:
-                text += (f"\nbest cut a stable test cut proves: {alt['spindle_rpm']:.0f} rpm, axial depth "
-                         f"{1e3 * alt['axial_depth_m']:.2f} mm, feed {1e3 * alt['feed_per_tooth_m']:.3f} mm/tooth: MRR "
-                         f"{1e6 * alt['mrr_m3_s']:.2f} cm^3/s ({100 * alt['share_of_plan']:.0f} % of the plan's; "
-                         f"cut {alt['backed_by']})")
+                from planner.learn.support import describe_best_backed
+
+                text += f"\nbest cut a stable test cut proves: {describe_best_backed(alt)}"
             elif support["status"] != "backed":
                 text += ("\nno sure stable test cut (marks the posterior takes for wrong with P > "
                          f"{support.get('max_doubt', 0.5):g} left out) proves a cut at the plan's engagement within the "

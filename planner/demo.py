@@ -272,6 +272,7 @@ def _step_learn(example: Example, report: Report) -> None:
     they prove. The commands a user would type, run in-process; the posterior is kept beside the
     report for them."""
     from planner.learn.outcomes_io import read_cuts
+    from planner.learn.support import describe_best_backed
 
     d = example.directory
     posterior = report.directory / "posterior.yaml"
@@ -297,9 +298,7 @@ def _step_learn(example: Example, report: Report) -> None:
                  f"{support.get('status', 'not known')}.")
         alt = support.get("best_backed")
         if alt:
-            sec.text(f"Best cut a stable test cut proves (cut {alt['backed_by']}): {alt['spindle_rpm']:.0f} rpm, "
-                     f"{1e3 * alt['axial_depth_m']:.2f} mm, {1e3 * alt['feed_per_tooth_m']:.3f} mm/tooth: "
-                     f"{1e6 * alt['mrr_m3_s']:.2f} cm^3/s, {100 * alt['share_of_plan']:.0f} % of the plan's removal rate.")
+            sec.text(f"Best cut a stable test cut proves: {describe_best_backed(alt)}.")
     else:
         sec.text(f"<span class='warn'>No plan with the posterior ({planned['status']}): {planned['message']}</span>")
     for w in learned["warnings"] + info.get("warnings", []):

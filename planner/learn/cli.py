@@ -315,7 +315,7 @@ def report_support(learned: dict, tests, setup, structure, planned: dict, *, met
     A stable mark counts when the posterior's probability that it is wrong is at most one minus the
     plan's level (``support['max_doubt']``, 0.05 at P >= 0.95): what a mark proves is trusted as far
     as the plan's own probability is."""
-    from .support import best_backed, plan_support, support_warning
+    from .support import best_backed, doubt_level, plan_support, support_warning
 
     if tests is None:
         learned["support"] = None
@@ -324,7 +324,7 @@ def report_support(learned: dict, tests, setup, structure, planned: dict, *, met
             "whether a test cut backs the plan is not known")
         return
     rpm, ap, cut = planned["spindle_rpm"], planned["axial_depth_m"], setup.cut
-    doubt = round(1.0 - learned["probability"], 12)
+    doubt = doubt_level(learned["probability"])
     support = learned["support"] = plan_support(tests.cuts, rpm, ap, cut.radial_depth_m, cut.milling == "down",
                                                 mislabelled=tests.mislabelled, max_doubt=doubt)
     support["max_doubt"] = doubt

@@ -43,14 +43,13 @@ def draw_test_cuts(ax, cuts, radial_depth_m: float, milling: str, *, mislabelled
     the milling direction) on depth (mm) over speed (rpm) axes: o stable, x chatter, ? uncertain;
     a stable mark the posterior doubts (``mislabelled`` above ``max_doubt``, by default its suspect
     level: more likely wrong than right) in grey."""
-    from .support import RADIAL_TOLERANCE, doubted_marks
+    from .support import at_engagement, doubted_marks
     from .update import SUSPECT_LABEL
 
     if cuts is None or not cuts.n_cuts:
         return
     name = "stable, taken for wrong" if max_doubt is None else f"stable, doubted (wrong with P > {max_doubt:g})"
-    same = ((np.abs(np.asarray(cuts.radial_depth_m) / radial_depth_m - 1.0) <= RADIAL_TOLERANCE)
-            & (cuts.down == (milling == "down")))
+    same = at_engagement(cuts, radial_depth_m, milling == "down")
     doubted = doubted_marks(mislabelled, cuts.n_cuts, SUSPECT_LABEL if max_doubt is None else max_doubt)
     for sel, marker, colour, label in ((same & (cuts.outcome == STABLE) & ~doubted, "o", "k", "stable"),
                                       (same & (cuts.outcome == STABLE) & doubted, "o", "0.6", name),

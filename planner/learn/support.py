@@ -45,8 +45,8 @@ from .likelihood import CHATTER, STABLE
 from .outcomes_io import CutTable
 from .update import SUSPECT_LABEL
 
-__all__ = ["plan_support", "support_warning", "best_backed", "doubted_marks", "SPEED_TOLERANCE", "RADIAL_TOLERANCE",
-           "MIN_WEIGHT"]
+__all__ = ["plan_support", "support_warning", "best_backed", "describe_best_backed", "doubted_marks", "doubt_level",
+           "at_engagement", "SPEED_TOLERANCE", "RADIAL_TOLERANCE", "MIN_WEIGHT"]
 
 #: Largest relative speed difference between a test cut and the plan for the cut to speak for the
 #: plan: a test cut of the plan's own speed, typed by hand to two or three significant digits, is
@@ -70,12 +70,33 @@ def doubted_marks(mislabelled, n_cuts: int, max_doubt: float = SUSPECT_LABEL) ->
     return np.nan_to_num(np.asarray(mislabelled, dtype=float)) > max_doubt
 
 
+def doubt_level(probability: float) -> float:
+    """The largest probability of being wrong at which ``plan`` at P(stable) >= ``probability``
+    counts a stable mark: ``1 - probability`` (module notes)."""
+    return round(1.0 - float(probability), 12)
+
+
+def describe_best_backed(alt: dict) -> str:
+    """One line for :func:`best_backed`'s cut with its ``share_of_plan`` (``plan``'s output, the demo)."""
+    return (f"{alt['spindle_rpm']:.0f} rpm, axial depth {1e3 * alt['axial_depth_m']:.2f} mm, feed "
+            f"{1e3 * alt['feed_per_tooth_m']:.3f} mm/tooth: MRR {1e6 * alt['mrr_m3_s']:.2f} cm^3/s "
+            f"({100 * alt['share_of_plan']:.0f} % of the plan's; cut {alt['backed_by']})")
+
+
+def at_engagement(cuts: CutTable, radial_depth_m: float, down: bool,
+                  radial_tolerance: float = RADIAL_TOLERANCE) -> np.ndarray:
+    """Mask of the cuts at an engagement: the milling direction, the radial depth within
+    ``radial_tolerance``."""
+    ae = np.asarray(cuts.radial_depth_m, dtype=float)
+    return ((np.asarray(cuts.down, dtype=bool) == bool(down))
+            & (np.abs(ae / float(radial_depth_m) - 1.0) <= radial_tolerance))
+
+
 def _sure(cuts: CutTable, mislabelled, radial_depth_m: float, down: bool, radial_tolerance: float,
           max_doubt: float = SUSPECT_LABEL) -> tuple[np.ndarray, np.ndarray]:
     """Masks of the sure stable marks (not doubted) and sure chatter marks at the engagement."""
-    ae = np.asarray(cuts.radial_depth_m, dtype=float)
-    at = ((np.asarray(cuts.weight, dtype=float) >= MIN_WEIGHT) & (np.asarray(cuts.down, dtype=bool) == bool(down))
-          & (np.abs(ae / float(radial_depth_m) - 1.0) <= radial_tolerance))
+    at = (np.asarray(cuts.weight, dtype=float) >= MIN_WEIGHT) & at_engagement(cuts, radial_depth_m, down,
+                                                                               radial_tolerance)
     doubted = doubted_marks(mislabelled, cuts.n_cuts, max_doubt)
     return at & (cuts.outcome == STABLE) & ~doubted, at & (cuts.outcome == CHATTER)
 
