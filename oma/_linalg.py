@@ -13,7 +13,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["single_threaded_blas", "blas_single_threaded", "lstsq_normal"]
+__all__ = ["single_threaded_blas", "blas_single_threaded", "lstsq_normal", "solve_normal"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -69,16 +69,34 @@ def lstsq_normal(a, y, *, ridge: float = 1e-12):
     -------
     ndarray, shape (p,) or (p, k)
     """
-    from scipy.linalg import cho_factor, cho_solve
-
     scale = np.sqrt(np.sum(a * a, axis=0))
     scale[scale == 0] = 1.0
     a_s = a / scale
-    g = a_s.T @ a_s
-    g[np.diag_indices_from(g)] += ridge * max(float(np.trace(g)) / max(g.shape[0], 1), 1e-300)
-    rhs = a_s.T @ y
-    try:
-        c = cho_solve(cho_factor(g, check_finite=False), rhs, check_finite=False)
-    except np.linalg.LinAlgError:
-        c = np.linalg.pinv(g) @ rhs
+    c = _solve_scaled(a_s.T @ a_s, a_s.T @ y, ridge)
     return c / (scale if c.ndim == 1 else scale[:, None])
+
+
+def solve_normal(gram, rhs, *, ridge: float = 1e-12):
+    """:func:`lstsq_normal` from the normal equations themselves, ``gram = a^T a`` (p, p) and
+    ``rhs = a^T y`` (p,) or (p, k): for designs whose products have closed forms cheaper than the
+    design (:func:`oma.harmonics.fit_angle_orders`)."""
+    gram = np.asarray(gram, dtype=float)
+    rhs = np.asarray(rhs, dtype=float)
+    scale = np.sqrt(np.maximum(np.diag(gram), 0.0))
+    scale[scale == 0] = 1.0
+    per_row = scale if rhs.ndim == 1 else scale[:, None]
+    c = _solve_scaled(gram / np.outer(scale, scale), rhs / per_row, ridge)
+    return c / per_row
+
+
+def _solve_scaled(g, rhs, ridge):
+    """The column-scaled normal equations ``g c = rhs``, ``g`` with a relative ``ridge`` on its
+    diagonal (its pseudo-inverse where even that is not positive definite)."""
+    from scipy.linalg import cho_factor, cho_solve
+
+    g = np.array(g, dtype=float)
+    g[np.diag_indices_from(g)] += ridge * max(float(np.trace(g)) / max(g.shape[0], 1), 1e-300)
+    try:
+        return cho_solve(cho_factor(g, check_finite=False), rhs, check_finite=False)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(g) @ rhs

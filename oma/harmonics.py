@@ -35,6 +35,7 @@ __all__ = [
     "background_variance",
     "BackgroundEstimate",
     "fit_harmonic_signal",
+    "fit_angle_orders",
 ]
 
 
@@ -55,12 +56,17 @@ def harmonic_frequencies(spindle_hz: float, teeth: int, max_hz: float):
 
 
 def _comb_energy(x_windowed, sample_rate_hz, f0, max_hz):
-    """Energy of the DFT of the windowed signals at the multiples of ``f0``."""
-    n = x_windowed.shape[-1]
-    h = np.arange(1, int(np.floor(max_hz / f0 - 1e-12)) + 1)
-    t = np.arange(n) / sample_rate_hz
-    e = np.exp(-2j * np.pi * np.outer(h * f0, t))  # (n_h, n)
-    return float(np.sum(np.abs(x_windowed @ e.T) ** 2))
+    """Energy of the DFT of the windowed signals at the multiples of ``f0``, ``sum_h |X(h f0)|^2``.
+
+    The harmonics' phasors come from :func:`_angle_powers` (a few signal lengths of memory). They
+    used to be the (n_h, n) matrix of all of them: at 10 kHz over 20 s 22 million complex
+    exponentials, 355 MB and 1 s per evaluation, the most of ``identify --output-only``'s time
+    (session 30)."""
+    x = np.asarray(x_windowed, dtype=float)
+    n_h = int(np.floor(max_hz / f0 - 1e-12))
+    phi = (2.0 * np.pi * f0 / sample_rate_hz) * np.arange(x.shape[-1])
+    # |X_h|^2 = (x . cos h phi)^2 + (x . sin h phi)^2 per signal
+    return float(sum(np.sum((x @ z.T) ** 2) for _, z in _angle_powers(phi, n_h)))
 
 
 #: Bins on each side over which :func:`refine_spindle_frequency` (``lines_only``) takes the
@@ -401,6 +407,97 @@ def fit_harmonic_signal(x, sample_rate_hz: float, harmonic_hz, *, trend: bool = 
         return np.zeros_like(x)
     coef = lstsq_normal(basis, x.T)
     return (basis @ coef).T
+
+
+def fit_angle_orders(y, t, angle_rad, orders, sign):
+    """Least squares of ``y`` on the trend and lines that are orders of one angle: the columns
+    ``[1, (t - mean t) / ptp t, cos(h_i phi), s_i sin(h_i phi) ...]`` for each line ``i`` of order
+    ``h_i`` and sign ``s_i``, ``phi = angle_rad``. Returns the coefficients (2 + 2 p, l), laid out as
+    :func:`lstsq_normal` of :func:`harmonic_basis` lays them out, and the fit (l, n).
+
+    These are :func:`harmonic_basis`'s columns for spindle lines and their folds: a line at
+    ``|h f0 - k fs|`` (sign that of ``h f0 - k fs``) with the extra phase ``s h dphi``, sampled at
+    ``t = j / fs``, is ``cos(h phi)`` and ``s sin(h phi)`` of the angle ``phi = 2 pi f0 t + dphi``.
+    Every product of two such columns is a sum of ``exp(i k phi)`` over the samples, ``k`` up to
+    twice the highest order, so the normal equations cost ``O(n h_max)`` (the powers of
+    ``exp(i phi)`` stepped by one product, rounding ``k`` epsilons) where the design costs
+    ``O(n p^2)`` and ``n p`` numbers in memory: at 25.6 kHz over 20 s, 570 columns, 2.3 GB
+    (session 30). The solve is :func:`oma._linalg.solve_normal`, the same column-scaled,
+    ridge-guarded equations.
+
+    Parameters
+    ----------
+    y : array_like, shape (l, n)
+    t : array_like, shape (n,)
+        Sample times, s (the trend's).
+    angle_rad : array_like, shape (n,)
+    orders : array_like of int, shape (p,)
+        Positive.
+    sign : array_like, shape (p,)
+        +-1.
+    """
+    from ._linalg import solve_normal
+
+    y = np.array(y, dtype=float, ndmin=2)
+    t = np.asarray(t, dtype=float)
+    phi = np.asarray(angle_rad, dtype=float)
+    a = np.asarray(orders, dtype=int)
+    s = np.asarray(sign, dtype=float)
+    n, p = t.size, a.size
+    tau = (t - t.mean()) / max(np.ptp(t), 1e-12)
+    h_max = int(a.max()) if p else 0
+    # power sums: e[k] = sum exp(i k phi), e_tau[k] = sum tau exp(i k phi), e_y[k] = y exp(i k phi)
+    e = np.zeros(2 * h_max + 1, dtype=complex)
+    e_tau = np.zeros(h_max + 1, dtype=complex)
+    e_y = np.zeros((h_max + 1, y.shape[0]), dtype=complex)
+    e[0], e_tau[0] = n, tau.sum()
+    for k, z in _angle_powers(phi, 2 * h_max):
+        e[k] = complex(*z.sum(axis=1))
+        if k <= h_max:
+            e_tau[k] = complex(*(z @ tau))
+            ry = y @ z.T                                   # (l, 2): sum y cos, sum y sin
+            e_y[k] = ry[:, 0] + 1j * ry[:, 1]
+    d = a[:, None] - a[None, :]
+    e_diff = np.where(d >= 0, e[np.abs(d)], np.conj(e[np.abs(d)]))
+    e_sum = e[a[:, None] + a[None, :]]
+    ss = np.outer(s, s)
+    gram = np.empty((2 + 2 * p, 2 + 2 * p))
+    gram[:2, :2] = [[n, tau.sum()], [tau.sum(), tau @ tau]]
+    cos_, sin_ = slice(2, None, 2), slice(3, None, 2)
+    gram[0, cos_], gram[0, sin_] = e[a].real, s * e[a].imag
+    gram[1, cos_], gram[1, sin_] = e_tau[a].real, s * e_tau[a].imag
+    gram[cos_, :2], gram[sin_, :2] = gram[:2, cos_].T, gram[:2, sin_].T
+    gram[cos_, cos_] = 0.5 * (e_diff + e_sum).real                  # cos a phi cos b phi
+    gram[sin_, sin_] = ss * 0.5 * (e_diff - e_sum).real             # sin a phi sin b phi
+    gram[cos_, sin_] = s[None, :] * 0.5 * (e_sum - e_diff).imag     # cos a phi sin b phi
+    gram[sin_, cos_] = gram[cos_, sin_].T
+    rhs = np.empty((2 + 2 * p, y.shape[0]))
+    rhs[0], rhs[1] = y.sum(axis=1), y @ tau
+    rhs[cos_], rhs[sin_] = e_y[a].real, s[:, None] * e_y[a].imag
+    coef = solve_normal(gram, rhs)
+    # the fit, order by order: sum over the lines of order h of a cos(h phi) + s b sin(h phi)
+    per_order = np.zeros((h_max + 1, y.shape[0], 2))
+    np.add.at(per_order, a, np.stack([coef[cos_], s[:, None] * coef[sin_]], axis=-1))
+    fit = coef[0][:, None] + coef[1][:, None] * tau[None, :]
+    for k, z in _angle_powers(phi, h_max):
+        fit += per_order[k] @ z
+    return coef, fit
+
+
+def _angle_powers(phi, k_max):
+    """``(k, [cos k phi; sin k phi])`` for ``k = 1 .. k_max``, each (2, n), from one evaluation of
+    ``cos phi`` and ``sin phi`` (one complex product per sample and step; the array is reused)."""
+    c1, s1 = np.cos(phi), np.sin(phi)
+    z = np.stack([c1, s1])
+    tmp = np.empty_like(c1)
+    for k in range(1, k_max + 1):
+        if k > 1:   # (a + ib)(c1 + i s1)
+            np.multiply(z[0], s1, out=tmp)
+            z[0] *= c1
+            z[0] -= z[1] * s1
+            z[1] *= c1
+            z[1] += tmp
+        yield k, z
 
 
 def harmonic_basis(t, harmonic_hz, *, trend: bool = True, phase_rad=None) -> np.ndarray:

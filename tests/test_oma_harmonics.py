@@ -93,3 +93,46 @@ def test_a_response_without_lines_keeps_the_nominal_spindle_and_one_with_lines_i
     ref = refine_spindle_frequency(strong, fs, 45.0)
     assert ref == pytest.approx(44.1, rel=1e-5)
     assert refine_spindle_frequency(strong, fs, 45.0, lines_only=True) == ref
+
+
+@pytest.mark.parametrize("tracked, alias_up_to, segment", [(False, 0.5, None), (False, 4.0, None),
+                                                          (True, 4.0, None), (True, 4.0, (1500, 2700))])
+def test_lines_as_orders_of_the_spindle_angle_are_the_dense_least_squares(tracked, alias_up_to, segment):
+    # fit_angle_orders forms the normal equations from power sums of exp(i phi); the dense design of
+    # harmonic_basis (each line at its folded frequency, its tracked phase as orders of the angle)
+    # solved by lstsq_normal is the independent reference
+    from oma._linalg import lstsq_normal
+    from oma.harmonics import fit_angle_orders, harmonic_basis
+    from oma.output_only.harmonics import _line_phase, _line_set
+
+    fs, f0 = 1650.0, 116.7
+    n = 6000
+    t = np.arange(n) / fs
+    freqs, _, aliased, orders, sign = _line_set(f0, 4, fs, n, alias_up_to)
+    assert (alias_up_to > 0.5) == bool(np.any(aliased)) and ((sign < 0).any() or alias_up_to == 0.5)
+    dphi = 0.4 * np.sin(2 * np.pi * 0.3 * t) if tracked else None
+    rng = np.random.default_rng(3)
+    y = rng.standard_normal((3, n)) + 4.0 * np.cos(4 * (2 * np.pi * f0 * t + (0 if dphi is None else dphi)) + 0.7) + t
+    if segment is not None:
+        sl = slice(*segment)
+        t, y, dphi = t[sl], y[:, sl], None if dphi is None else dphi[sl]
+    basis = harmonic_basis(t, freqs, trend=True, phase_rad=_line_phase(dphi, orders, sign))
+    dense = lstsq_normal(basis, y.T)
+    coef, fit = fit_angle_orders(y, t, 2 * np.pi * f0 * t + (0 if dphi is None else dphi), orders, sign)
+    np.testing.assert_allclose(coef, dense, rtol=0, atol=1e-10 * np.abs(dense).max())
+    np.testing.assert_allclose(fit, (basis @ dense).T, rtol=0, atol=1e-10 * np.abs(fit).max())
+    # the planted tooth line (order 4) comes back: amplitude 4 at phase 0.7 on every channel
+    amp = coef[2 + 2 * 3] - 1j * coef[3 + 2 * 3]
+    np.testing.assert_allclose(amp, 4.0 * np.exp(0.7j), atol=0.15)
+
+
+def test_the_comb_energy_is_the_dft_at_the_spindle_multiples():
+    from oma.harmonics import _comb_energy
+
+    fs, n, f0 = 1000.0, 8000, 45.03
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((3, n)) * np.hanning(n)
+    t = np.arange(n) / fs
+    h = np.arange(1, int(500.0 / f0) + 1)
+    dense = float(np.sum(np.abs(x @ np.exp(-2j * np.pi * np.outer(h * f0, t)).T) ** 2))
+    assert _comb_energy(x, fs, f0, 500.0) == pytest.approx(dense, rel=1e-12)

@@ -37,8 +37,7 @@ from scipy import signal as sps
 from scipy import stats
 
 from .._arrays import readonly as _ro
-from ..harmonics import harmonic_basis, harmonic_frequencies, refine_spindle_frequency
-from .._linalg import lstsq_normal
+from ..harmonics import fit_angle_orders, harmonic_frequencies, refine_spindle_frequency
 
 __all__ = ["ResponseHarmonics", "remove_response_harmonics", "at_milling_line", "line_steadiness", "cutting_window",
            "strongest_line_hz"]
@@ -199,12 +198,12 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
     f0 = refine_spindle_frequency(y, fs, nominal, search=search, lines_only=True) if refine else nominal
     freqs, tooth, aliased, orders, sign = _line_set(f0, teeth, fs, n, alias_up_to)
     nperseg = int(nperseg or min(n, int(2 ** np.round(np.log2(2.0 * fs)))))
-    fit = _fit_lines(y, t, fs, freqs, None, orders, sign, nperseg)
+    fit = _fit_lines(y, t, fs, freqs, f0, None, orders, sign, nperseg)
     strongest = _strongest_tooth(fit, tooth, aliased)
     if strongest is not None and not np.any(np.abs(fit[1][:, strongest]) ** 2
                                             > 10.0 ** (threshold_db / 10.0) * fit[2][:, strongest] ** 2):
         strongest = None  # no tooth line stands out (a wrong nominal speed): nothing to check or track
-    steadiness = line_steadiness(y, t, freqs, None, orders, sign, strongest, fit[2][:, strongest]) \
+    steadiness = line_steadiness(y, t, freqs, None, orders, sign, strongest, fit[2][:, strongest], spindle_hz=f0) \
         if strongest is not None else {}
     tracked, variation, dphi = False, 0.0, None
     if steadiness and not steadiness["steady"] and steadiness["loss"] > STEADY_MAX_LOSS:
@@ -215,9 +214,9 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
             f0_t = f0 + df0
             lines_t = _line_set(f0_t, teeth, fs, n, alias_up_to)
             if lines_t[0].size == freqs.size:
-                fit_t = _fit_lines(y, t, fs, lines_t[0], dphi_t, lines_t[3], lines_t[4], nperseg)
+                fit_t = _fit_lines(y, t, fs, lines_t[0], f0_t, dphi_t, lines_t[3], lines_t[4], nperseg)
                 steady_t = line_steadiness(y, t, lines_t[0], dphi_t, lines_t[3], lines_t[4], strongest,
-                                           fit_t[2][:, strongest])
+                                           fit_t[2][:, strongest], spindle_hz=f0_t)
                 if steady_t["loss"] < steadiness["loss"] and (steady_t["steady"] or steady_t["chi2"] < steadiness["chi2"]):
                     fit, steadiness, tracked, dphi = fit_t, steady_t, True, dphi_t
                     f0, (freqs, tooth, aliased, orders, sign) = f0_t, lines_t
@@ -237,18 +236,20 @@ def _line_phase(dphi, orders, sign):
     return None if dphi is None else np.outer(np.asarray(sign) * np.asarray(orders), dphi)
 
 
-def _basis(t, freqs, dphi, orders, sign):
-    """Trend and line columns; with ``dphi`` (spindle angle minus ``2 pi f0 t``, rad) the lines are
-    orders of the tracked angle."""
-    return harmonic_basis(t, freqs, trend=True, phase_rad=_line_phase(dphi, orders, sign))
+def _angle(t, f0, dphi):
+    """The spindle angle ``2 pi f0 t + dphi`` (rad) whose orders the lines are; ``dphi`` (the
+    tracked angle's deviation) None: 0."""
+    return 2.0 * np.pi * f0 * np.asarray(t) + (0.0 if dphi is None else dphi)
 
 
-def _fit_lines(y, t, fs, freqs, dphi, orders, sign, nperseg):
-    """Residual, complex amplitudes (l, n_h) and their noise sd (l, n_h)."""
+def _fit_lines(y, t, fs, freqs, f0, dphi, orders, sign, nperseg):
+    """Residual, complex amplitudes (l, n_h) and their noise sd (l, n_h) of the lines ``freqs``,
+    orders ``orders`` with signs ``sign`` of the spindle angle of frequency ``f0``
+    (:func:`oma.harmonics.fit_angle_orders`: :func:`oma.harmonics.harmonic_basis`'s columns at the
+    lines' frequencies, without forming them)."""
     l, n = y.shape
-    basis = _basis(t, freqs, dphi, orders, sign)
-    coef = lstsq_normal(basis, y.T)  # (n_cols, l)
-    res = y - (basis @ coef).T
+    coef, fitted = fit_angle_orders(y, t, _angle(t, f0, dphi), orders, sign)
+    res = y - fitted
     amp = (coef[2::2] - 1j * coef[3::2]).T  # (l, n_h)
     f, p = sps.welch(res, fs=fs, nperseg=nperseg, axis=-1)
     df = f[1] - f[0]
@@ -270,11 +271,13 @@ def _strongest_tooth(fit, tooth, aliased):
     return int(cand[np.argmax(snr)])
 
 
-def line_steadiness(y, t, freqs, dphi, orders, sign, line: int, noise_sd, *, segments: int = STEADY_SEGMENTS) -> dict:
+def line_steadiness(y, t, freqs, dphi, orders, sign, line: int, noise_sd, *, spindle_hz: float,
+                    segments: int = STEADY_SEGMENTS) -> dict:
     """Whether line ``line``'s complex amplitude is the same on ``segments`` parts of the record.
 
-    All lines are refitted on each segment (the basis of :func:`remove_response_harmonics`, tracked
-    when ``dphi`` is given). With ``a_s`` the segment amplitudes (per channel) and ``sigma_s`` their
+    All lines are refitted on each segment (the basis of :func:`remove_response_harmonics`: orders
+    ``orders`` and signs ``sign`` of the angle of frequency ``spindle_hz``, tracked when ``dphi`` is
+    given). With ``a_s`` the segment amplitudes (per channel) and ``sigma_s`` their
     noise (the whole record's noise ``noise_sd`` times ``sqrt(S)``), ``chi2 = sum |a_s - mean|^2 /
     (sigma_s^2 / 2)`` has ``2 (S - 1)`` degrees of freedom per channel for a steady line. ``loss``:
     1 - |whole-record amplitude| / mean |a_s| (phase wander: the coherent fit captures less than the
@@ -292,8 +295,8 @@ def line_steadiness(y, t, freqs, dphi, orders, sign, line: int, noise_sd, *, seg
     seg_amp = np.zeros((l, segments), dtype=complex)
     for s in range(segments):
         sl = slice(edges[s], edges[s + 1])
-        b = _basis(t[sl], freqs, None if dphi is None else dphi[sl], orders, sign)
-        coef = lstsq_normal(b, y[:, sl].T)
+        coef, _ = fit_angle_orders(y[:, sl], t[sl], _angle(t[sl], spindle_hz, None if dphi is None else dphi[sl]),
+                                   orders, sign)
         seg_amp[:, s] = coef[2 + 2 * line] - 1j * coef[3 + 2 * line]
     sigma = np.maximum(np.asarray(noise_sd, float), np.finfo(float).tiny) * np.sqrt(segments)
     mean = seg_amp.mean(axis=1)

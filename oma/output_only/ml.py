@@ -108,9 +108,9 @@ def _band_bins(ffts, a, b, lines, guard):
     records, bins within ``guard`` of a milling line left out."""
     ws, xs = [], []
     for freq, x in ffts:
-        sel = (freq >= a) & (freq <= b)
-        if lines.size:
-            sel &= np.min(np.abs(freq[:, None] - lines[None, :]), axis=1) > guard
+        sel = np.flatnonzero((freq >= a) & (freq <= b))
+        if lines.size:   # the band's bins only (all of a 25.6 kHz record's against its 284 lines: 0.6 s)
+            sel = sel[np.min(np.abs(freq[sel, None] - lines[None, :]), axis=1) > guard]
         ws.append(2 * np.pi * freq[sel]); xs.append(x[:, sel].T)
     return np.concatenate(ws), np.concatenate(xs)
 
