@@ -133,10 +133,10 @@ def refine_spindle_frequency(force, sample_rate_hz: float, nominal_hz: float, *,
     heights = np.zeros(cands.size)
     for h in range(1, n_harm_max + 1):
         fh = h * cands
-        ok = fh < nyq
-        energy[ok] += np.interp(fh[ok], fgrid, spec)
+        k = int(np.searchsorted(fh, nyq))   # the candidates (ascending) whose multiple h is below Nyquist
+        energy[:k] += np.interp(fh[:k], fgrid, spec)
         if lines_only:
-            heights[ok] += np.interp(fh[ok], fgrid, height)
+            heights[:k] += np.interp(fh[:k], fgrid, height)
     if lines_only and not heights.max() >= LINE_COMB_CONTRAST * np.median(heights):
         return float(nominal_hz)   # no comb of lines in the record: nothing to refine against
     i = int(np.argmax(energy))
