@@ -31,6 +31,7 @@ from .coverage import unexplained_peaks
 from .harmonics import STEADY_SEGMENTS, WINDOW_LINE_TO_NOISE, cutting_window, strongest_line_hz
 from .mass_line import mass_line_directions, mass_line_levels
 from .modes import OutputOnlyModes, output_only_modes
+from .rate import analysis_factor, decimated
 from .resolution import unresolved_modes
 from .scaling import StiffnessScaling, line_misfit, scale_modes, tooth_force_harmonics, with_spindle
 
@@ -102,6 +103,7 @@ class OutputOnlyIdentification:
     scaled_by : tuple of str
         Per mode: ``'lines'``, ``'background'`` (the lines scale it poorly) or ``'none'``.
     sample_rate_hz : float
+        The records' rate, Hz (the background force's white variance is given at it).
     lines_scaling : StiffnessScaling or None
         With ``background``: what the lines alone gave (``stiffness`` has the background's values
         for the modes it scaled).
@@ -121,6 +123,9 @@ class OutputOnlyIdentification:
         Modes whose directions the score test finds complex (:data:`COMPLEX_P`,
         :data:`COMPLEX_MIN`), and those refitted with complex directions where the real fit had
         taken a mode out of its band (:data:`COMPLEX_RESCUE_P`); any leaves the model untrusted.
+    analysis_rate_hz : float
+        The rate the records were analysed at, Hz: theirs, or lower where they were decimated
+        (:mod:`oma.output_only.rate`).
     directions_source : str
         Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
         ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_directions`, and
@@ -144,6 +149,7 @@ class OutputOnlyIdentification:
     directions_source: str = "resonance band"
     drifting_modes: tuple = ()
     complex_modes: tuple = ()
+    analysis_rate_hz: float = float("nan")
 
     @property
     def scaled(self) -> bool:
@@ -195,6 +201,7 @@ class OutputOnlyIdentification:
              "half_record_frequency_hz": [float(v) for v in self.modes.half_freq_hz[k]], "z": float(z[k])}
             for k in self.drifting_modes]
         out["complex_modes"] = [_complex_entry(self.modes, k) for k in self.complex_modes]
+        out["analysis_rate_hz"] = float(self.analysis_rate_hz)
         out["warnings"] = list(self.warnings)
         return out
 
@@ -211,7 +218,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                          coefficient_relative_sd: float = 0.15, band_hz=(4.0, 100.0), n_segments: int = 10,
                          level: float = 0.95, refine_harmonics: bool = True, max_line_hz: float | None = None,
                          direction_sd: float | None = None, background_anisotropy: float | None = ANISOTROPY_LOG_SD,
-                         **mode_options) -> OutputOnlyIdentification:
+                         decimate: bool = True, **mode_options) -> OutputOnlyIdentification:
     """Identify the tool-tip modal model from the vibration channels alone.
 
     Parameters
@@ -237,6 +244,10 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         found from the modes they scale well, allowing this log standard deviation of that level
         between directions (:mod:`oma.output_only.background`; default
         :data:`~oma.output_only.background.ANISOTROPY_LOG_SD`). None: not done.
+    decimate : bool
+        Records sampled far above what the analysis reads are decimated first
+        (:mod:`oma.output_only.rate`; the rate used is ``analysis_rate_hz``). False: the recorded
+        rate throughout.
     """
     if scaling not in ("force_model", "measured_force"):
         raise ValueError(f"scaling must be 'force_model' or 'measured_force', not {scaling!r}")
@@ -244,6 +255,10 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
     if not records:
         raise ValueError("identify needs at least one record")
     check_same_pose(records)  # cli.md: records of one pose
+    recorded_fs = float(records[0].sample_rate_hz)
+    q = analysis_factor(records, band_hz, max_line_hz=max_line_hz,
+                        alias_up_to=mode_options.get("alias_up_to", 0.5)) if decimate else 1
+    records = [decimated(r, q) for r in records]
     fs = float(records[0].sample_rate_hz)
     warnings: list[str] = []
     quantity, signals, slices, axes = _motion_signals(records, fs, warnings)
@@ -299,7 +314,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
                       for kk, bg in zip(k, sc.by_background))
     return OutputOnlyIdentification(model=model, modes=modes, scaling=sc.used, stiffness=stiffness, trusted=trusted,
                                     warnings=tuple(warnings), quantity=quantity, background=sc.background,
-                                    scaled_by=scaled_by, sample_rate_hz=fs,
+                                    scaled_by=scaled_by, sample_rate_hz=recorded_fs, analysis_rate_hz=fs,
                                     lines_scaling=sc.lines_scaling if sc.background is not None else None,
                                     unexplained_peaks=tuple(checks.peaks), unresolved_modes=tuple(checks.unresolved),
                                     undetermined_directions=tuple(int(k) for k in checks.loose),
@@ -765,7 +780,7 @@ def _lines_above(records, slices, modes: OutputOnlyModes, quantity, axes, scalin
     return (f"the tooth-passing lines above those that scaled the modes ({hz} Hz) disagree with the scaled model "
             f"(reduced chi-square {misfit:.0f}; their difference from its prediction is {worst} times the "
             "prediction): the response of modes above the band (spindle and tool modes, above "
-            f"{top:.0f} Hz, which records sampled at {fs:g} Hz cannot resolve), whose static compliance also loads "
+            f"{top:.0f} Hz, which records analysed at {fs:g} Hz cannot resolve), whose static compliance also loads "
             "the lines that scaled the modes: the stiffnesses are not reliable. Scale with the measured force "
             "(identify without --output-only, which estimates that compliance) and add those modes from a "
             "tool-tip tap test (tool_mode.yaml)")

@@ -1,0 +1,80 @@
+"""Records sampled far above what the output-only analysis reads are decimated first
+(:mod:`oma.output_only.rate`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from oma.output_only.identify import identify_output_only
+from oma.output_only.rate import MIN_ANALYSIS_RATE_HZ, analysis_factor, decimated
+from oma.record import Channel, Record
+from oma.synthetic import paper_like_cut, paper_like_model, paper_like_tool, synthetic_record
+
+
+def _record(fs, data, rpm=2700.0, teeth=2, time_s=None):
+    channels = tuple(Channel(a, "acceleration", a, "m/s2") for a in "xyz")
+    return Record(fs, channels, data, replace(paper_like_tool(), teeth=teeth),
+                  replace(paper_like_cut(), spindle_rpm=rpm), time_s=time_s)
+
+
+def test_the_factor_keeps_the_rate_over_what_the_analysis_reads():
+    n = 1000
+    data = np.ones((3, n)) * np.arange(n)
+    assert analysis_factor([_record(25600.0, data)], (4.0, 100.0)) == int(25600 // MIN_ANALYSIS_RATE_HZ) == 6
+    assert analysis_factor([_record(5000.0, data)], (4.0, 100.0)) == 1          # under twice the floor
+    assert analysis_factor([_record(25600.0, data)], (4.0, 1000.0)) == 2         # ten times the band's top
+    # a 4-tooth tool at 30 000 rpm passes at 2 kHz: the rate stays at 2.5 times that or more
+    assert analysis_factor([_record(25600.0, data, rpm=30000.0, teeth=4)], (4.0, 100.0)) == 5
+    assert analysis_factor([_record(25600.0, data)], (4.0, 100.0), max_line_hz=2500.0) == 4
+    # folds placed from the recorded rate, a gap inside a channel, or two rates: as recorded
+    assert analysis_factor([_record(25600.0, data)], (4.0, 100.0), alias_up_to=4.0) == 1
+    gap = data.copy()
+    gap[1, 10] = np.nan
+    assert analysis_factor([_record(25600.0, gap)], (4.0, 100.0)) == 1
+    assert analysis_factor([_record(25600.0, data), _record(12800.0, data)], (4.0, 100.0)) == 1
+    missing = data.copy()
+    missing[2] = np.nan                                                           # an axis not recorded
+    assert analysis_factor([_record(25600.0, missing)], (4.0, 100.0)) == 6
+
+
+def test_decimation_keeps_the_band_and_removes_what_would_fold():
+    fs, q, n = 24000.0, 6, 48000
+    t = np.arange(n) / fs
+    keep, fold = 0.3 * fs / q, 0.65 * fs / q         # 1.2 kHz kept; 2.6 kHz, over the new Nyquist (2 kHz)
+    x = np.cos(2 * np.pi * keep * t + 0.4) + np.cos(2 * np.pi * fold * t) + 3.0 * t
+    data = np.vstack([x, np.full(n, 0.25), np.full(n, np.nan)])   # a dead sensor, an axis not recorded
+    rec = decimated(_record(fs, data, time_s=t + 5.0), q)
+    assert rec.sample_rate_hz == fs / q and rec.n_samples == n // q
+    np.testing.assert_array_equal(rec.time_s, t[::q] + 5.0)
+    assert np.all(rec.data[1] == 0.25) and np.all(np.isnan(rec.data[2]))
+    # away from the ends: the kept line's amplitude and phase, the trend, and nothing of the folded line
+    y = rec.data[0] - 3.0 * rec.time
+    mid = slice(200, -200)
+    tt = rec.time[mid]
+    basis = np.column_stack([np.cos(2 * np.pi * keep * tt), np.sin(2 * np.pi * keep * tt),
+                             np.cos(2 * np.pi * (fs / q - fold) * tt), np.sin(2 * np.pi * (fs / q - fold) * tt)])
+    coef = np.linalg.lstsq(basis, y[mid], rcond=None)[0]
+    assert abs(coef[0] - 1j * coef[1]) == pytest.approx(1.0, abs=1e-3)
+    assert np.angle(coef[0] - 1j * coef[1]) == pytest.approx(0.4, abs=1e-3)
+    assert abs(coef[2] - 1j * coef[3]) < 0.01          # where the 2.6 kHz line would fold: 1.4 kHz
+    assert decimated(rec, 1) is rec
+
+
+def test_a_record_at_a_shop_rate_gives_the_modes_it_gives_undecimated():
+    # 12 s of the paper cell's accelerations at 8 kHz: analysed at 4 kHz, the same modes within a
+    # fraction of their standard errors, the same trust, at about half the CPU (not asserted)
+    rec = synthetic_record(paper_like_model(), duration_s=12.0, sample_rate_hz=8000.0, output="acceleration", rng=5,
+                           spindle_rpm=2700.0)
+    fast = identify_output_only([rec])
+    full = identify_output_only([rec], decimate=False)
+    assert fast.analysis_rate_hz == 4000.0 and full.analysis_rate_hz == 8000.0
+    assert fast.sample_rate_hz == full.sample_rate_hz == 8000.0
+    assert fast.to_dict()["analysis_rate_hz"] == 4000.0
+    assert fast.modes.n_modes == full.modes.n_modes == 3 and fast.trusted == full.trusted
+    gap = np.abs(fast.modes.freq_hz - full.modes.freq_hz) / full.modes.freq_se_hz
+    assert np.all(gap < 0.5), gap
+    true = np.sort(paper_like_model().natural_frequency_hz)
+    assert np.all(np.abs(fast.modes.freq_hz / true - 1) < 0.02)
