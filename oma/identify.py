@@ -433,7 +433,9 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
             warnings.append(short[a])
         if np.isfinite(ferr[a]) and ferr[a] > max_fit_error:
             what = "the measured displacement (beyond its rounding)" if tfit_reported else "the H1 estimate"
-            warnings.append(f"{AXES[a]}: the model misses {what} by {100 * ferr[a]:.0f} % (fit error)")
+            # a degenerate fit's error can be astronomical (4e146 for a mode under a tracker's rounding step)
+            size = f"{100 * ferr[a]:.0f}" if ferr[a] < 1e3 else f"{100 * ferr[a]:.2g}"
+            warnings.append(f"{AXES[a]}: the model misses {what} by {size} % (fit error)")
     for hz in model.natural_frequency_hz:
         for h in harmonics:
             if h is not None and np.any(np.abs(h.freq_hz[h.significant] - hz) < 2.0 * (f[1] - f[0])):
@@ -613,7 +615,7 @@ def _excitation(model, records, signals, harmonics, fs, durations, noise_var, me
     for a in measured_axes:
         if det.assessed[a] and not det.sufficient[a]:
             short[a] = (f"{AXES[a]}: background force variance {noise_var[a]:.1f} N^2 is below the "
-                        f"{det.min_variance_N2[a]:.1f} N^2 the displacement sensor can resolve in "
+                        f"{det.min_variance_N2[a]:.5g} N^2 the displacement sensor can resolve in "
                         f"{durations.max():.2f} s: the {AXES[a]} modes are not reliably identified")
         elif resolution is not None and p2v_meas[a] < resolution:
             short[a] = (f"{AXES[a]}: the background force moves the tool by only "
