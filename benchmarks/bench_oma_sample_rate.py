@@ -3,7 +3,7 @@
 Shop accelerometers record at 5-51.2 kHz; the issue's target (3 s CPU per 20 s record) is set at
 1 kHz. Per rate: 20 s of the paper cell's accelerations (the benchmark's tooth case, 2700 rpm),
 ``identify --output-only`` as shipped (records decimated to the rate the analysis needs,
-:mod:`oma.output_only.rate`) and at the recorded rate throughout (``decimate=False``, the
+:mod:`oma.decimation`) and at the recorded rate throughout (``decimate=False``, the
 baseline), each in a fresh process per run (its peak memory is that run's): the median CPU of
 ``--repeats`` runs, the ratio of the baseline's to the shipped, the peak resident memory, the rate
 analysed, and the modes both ways.

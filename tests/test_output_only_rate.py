@@ -1,5 +1,5 @@
 """Records sampled far above what the output-only analysis reads are decimated first
-(:mod:`oma.output_only.rate`)."""
+(:mod:`oma.decimation`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from oma.output_only.identify import identify_output_only
-from oma.output_only.rate import MIN_ANALYSIS_RATE_HZ, analysis_factor, decimated
+from oma.decimation import MIN_ANALYSIS_RATE_HZ, analysis_factor, decimated
 from oma.record import Channel, Record
 from oma.synthetic import paper_like_cut, paper_like_model, paper_like_tool, synthetic_record
 

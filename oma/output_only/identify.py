@@ -31,7 +31,7 @@ from .coverage import unexplained_peaks
 from .harmonics import STEADY_SEGMENTS, WINDOW_LINE_TO_NOISE, cutting_window, strongest_line_hz
 from .mass_line import mass_line_directions, mass_line_levels
 from .modes import OutputOnlyModes, output_only_modes
-from .rate import analysis_factor, decimated
+from ..decimation import analysis_factor, decimated
 from .resolution import unresolved_modes
 from .scaling import StiffnessScaling, line_misfit, scale_modes, tooth_force_harmonics, with_spindle
 
@@ -125,7 +125,7 @@ class OutputOnlyIdentification:
         taken a mode out of its band (:data:`COMPLEX_RESCUE_P`); any leaves the model untrusted.
     analysis_rate_hz : float
         The rate the records were analysed at, Hz: theirs, or lower where they were decimated
-        (:mod:`oma.output_only.rate`).
+        (:mod:`oma.decimation`).
     directions_source : str
         Where the model's directions come from: ``'resonance band'`` (those of ``modes``) or
         ``'mass lines'`` (turned by :func:`oma.output_only.mass_line.mass_line_directions`, and
@@ -246,7 +246,7 @@ def identify_output_only(records: Sequence[Record], *, scaling: str = "force_mod
         :data:`~oma.output_only.background.ANISOTROPY_LOG_SD`). None: not done.
     decimate : bool
         Records sampled far above what the analysis reads are decimated first
-        (:mod:`oma.output_only.rate`; the rate used is ``analysis_rate_hz``). False: the recorded
+        (:mod:`oma.decimation`; the rate used is ``analysis_rate_hz``). False: the recorded
         rate throughout.
     """
     if scaling not in ("force_model", "measured_force"):
