@@ -18,6 +18,7 @@ import numpy as np
 from scipy import stats
 
 from .._identify_checks import check_same_pose
+from ..decimation import analysis_factor, decimated
 from ..errors import RecordError
 from ..modal import ModalModel
 from ..record import Record
@@ -31,7 +32,6 @@ from .coverage import unexplained_peaks
 from .harmonics import STEADY_SEGMENTS, WINDOW_LINE_TO_NOISE, cutting_window, strongest_line_hz
 from .mass_line import mass_line_directions, mass_line_levels
 from .modes import OutputOnlyModes, output_only_modes
-from ..decimation import analysis_factor, decimated
 from .resolution import unresolved_modes
 from .scaling import StiffnessScaling, line_misfit, scale_modes, tooth_force_harmonics, with_spindle
 
