@@ -7,10 +7,11 @@ the rate), and the tooth line whose envelope finds the cut. Data acquisition set
 accelerometers record at 10-51.2 kHz, where the milling lines up to Nyquist (hundreds of spindle
 multiples) cost time in proportion to the rate squared (session 30, 20 s of the benchmark's tooth
 case: 16 s of CPU at 25.6 kHz, 2.0 s decimated to 4.27 kHz; benchmarks/bench_oma_sample_rate.py).
-Such records are decimated first, by the largest integer factor that keeps the rate at least :data:`MIN_ANALYSIS_RATE_HZ`, :data:`BAND_FACTOR` times the band's top and
-:data:`TOOTH_FACTOR` times the highest tooth-passing frequency (and the scaling lines' limit when
-one is given), with SciPy's polyphase anti-aliasing filter (zero phase; Kaiser window, flat to
-0.02 dB up to 0.4 of the new rate, where the checks read at most 0.3).
+Such records are decimated first, by the largest integer factor that keeps the rate at least
+:data:`MIN_ANALYSIS_RATE_HZ`, :data:`BAND_FACTOR` times the band's top and :data:`TOOTH_FACTOR`
+times the highest tooth-passing frequency (and the scaling lines' limit when one is given), with
+SciPy's polyphase anti-aliasing filter (zero phase; Kaiser window, flat to 0.02 dB up to 0.4 of
+the new rate, where the checks read at most 0.3).
 
 Not decimated: records whose acquisition folded lines into the band (``alias_up_to`` above 0.5:
 their folds are placed from the recorded rate), records with missing samples inside a channel,
