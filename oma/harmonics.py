@@ -409,11 +409,12 @@ def fit_harmonic_signal(x, sample_rate_hz: float, harmonic_hz, *, trend: bool = 
     return (basis @ coef).T
 
 
-def fit_angle_orders(y, t, angle_rad, orders, sign):
+def fit_angle_orders(y, t, angle_rad, orders, sign, *, with_fit: bool = True):
     """Least squares of ``y`` on the trend and lines that are orders of one angle: the columns
     ``[1, (t - mean t) / ptp t, cos(h_i phi), s_i sin(h_i phi) ...]`` for each line ``i`` of order
     ``h_i`` and sign ``s_i``, ``phi = angle_rad``. Returns the coefficients (2 + 2 p, l), laid out as
-    :func:`lstsq_normal` of :func:`harmonic_basis` lays them out, and the fit (l, n).
+    :func:`lstsq_normal` of :func:`harmonic_basis` lays them out, and the fit (l, n; None without
+    ``with_fit``: it costs another pass over the powers).
 
     These are :func:`harmonic_basis`'s columns for spindle lines and their folds: a line at
     ``|h f0 - k fs|`` (sign that of ``h f0 - k fs``) with the extra phase ``s h dphi``, sampled at
@@ -475,6 +476,8 @@ def fit_angle_orders(y, t, angle_rad, orders, sign):
     rhs[0], rhs[1] = y.sum(axis=1), y @ tau
     rhs[cos_], rhs[sin_] = e_y[a].real, s[:, None] * e_y[a].imag
     coef = solve_normal(gram, rhs)
+    if not with_fit:
+        return coef, None
     # the fit, order by order: sum over the lines of order h of a cos(h phi) + s b sin(h phi)
     per_order = np.zeros((h_max + 1, y.shape[0], 2))
     np.add.at(per_order, a, np.stack([coef[cos_], s[:, None] * coef[sin_]], axis=-1))

@@ -121,6 +121,9 @@ def test_lines_as_orders_of_the_spindle_angle_are_the_dense_least_squares(tracke
     coef, fit = fit_angle_orders(y, t, 2 * np.pi * f0 * t + (0 if dphi is None else dphi), orders, sign)
     np.testing.assert_allclose(coef, dense, rtol=0, atol=1e-10 * np.abs(dense).max())
     np.testing.assert_allclose(fit, (basis @ dense).T, rtol=0, atol=1e-10 * np.abs(fit).max())
+    alone, none = fit_angle_orders(y, t, 2 * np.pi * f0 * t + (0 if dphi is None else dphi), orders, sign,
+                                   with_fit=False)
+    assert none is None and np.array_equal(alone, coef)
     # the planted tooth line (order 4) comes back: amplitude 4 at phase 0.7 on every channel
     amp = coef[2 + 2 * 3] - 1j * coef[3 + 2 * 3]
     np.testing.assert_allclose(amp, 4.0 * np.exp(0.7j), atol=0.15)

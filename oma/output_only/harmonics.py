@@ -296,7 +296,7 @@ def line_steadiness(y, t, freqs, dphi, orders, sign, line: int, noise_sd, *, spi
     for s in range(segments):
         sl = slice(edges[s], edges[s + 1])
         coef, _ = fit_angle_orders(y[:, sl], t[sl], _angle(t[sl], spindle_hz, None if dphi is None else dphi[sl]),
-                                   orders, sign)
+                                   orders, sign, with_fit=False)
         seg_amp[:, s] = coef[2 + 2 * line] - 1j * coef[3 + 2 * line]
     sigma = np.maximum(np.asarray(noise_sd, float), np.finfo(float).tiny) * np.sqrt(segments)
     mean = seg_amp.mean(axis=1)
