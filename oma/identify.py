@@ -390,7 +390,7 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     with np.errstate(divide="ignore"):
         weights = np.where(np.isfinite(est.std_m_N), 1.0 / est.std_m_N, 0.0)
     model, mfit, tfit, artefacts = _fitted(records, signals, harmonics, est, weights, band, names, method, fs,
-                                           warnings)
+                                           max_fit_error, warnings)
 
     # an unquantised time-domain fit far worse than the H1 fit of the same records was led astray
     agree = True
@@ -510,7 +510,7 @@ def _milling_lines(records, signals, fs, refine_harmonics, warnings):
     return harmonics, backgrounds
 
 
-def _fitted(records, signals, harmonics, est, weights, band, names, method, fs, warnings):
+def _fitted(records, signals, harmonics, est, weights, band, names, method, fs, max_fit_error, warnings):
     """The modal model (H1's with ``method='h1'``, else the time-domain fit's), the H1 modal fit,
     the time-domain fit and its artefacts (None where not run)."""
     df = est.freq_hz[1] - est.freq_hz[0]
@@ -534,14 +534,16 @@ def _fitted(records, signals, harmonics, est, weights, band, names, method, fs, 
     )
     # when the Welch lines are narrower than every fitted mode's half-power band, the H1 fit has
     # found the modes and the time-domain fit refines them; otherwise (short records) the
-    # time-domain fit searches for the modes itself
+    # time-domain fit searches for the modes itself. When the fit from the H1 start, with the
+    # samples no model explains left out (spikes, which spoil the H1 estimate too), still misses the
+    # records by more than a trusted model may, the search adds the modes the start lacked.
     noise_n2 = [_force_error_variance(r) for r in records]
 
-    def refit(keep=None, previous=None):
+    def refit(keep=None, previous=None, search_more=False):
         # refits after the first start from the last one's modes (the first may have been led astray)
         initial, search = (start, False) if resolved else (None, True)
         if previous is not None:
-            initial, search = previous.model, False
+            initial, search = previous.model, search_more
         return fit_time_domain(signals, harmonics, initial, search=search, force_noise_variance_N2=noise_n2,
                                keep_samples=keep, source={"method": "oma-time-domain", "records": names})
 
@@ -550,6 +552,13 @@ def _fitted(records, signals, harmonics, est, weights, band, names, method, fs, 
         if not tfit.quantised:
             # samples no model explains (spikes, edge artefacts) are left out and the fit repeated
             tfit, artefacts = fit_without_artefacts(signals, harmonics, tfit, refit)
+        if resolved and np.nanmax(tfit.fit_error, initial=0.0) > max_fit_error:
+            # the search's modes in the band, refitted without the ones it pinned at the band's ends:
+            # the start the H1 fit should have given, fitted as one it had given would be
+            keep = None if artefacts is None else [~e for e in artefacts.excluded]
+            searched = refit(keep, refit(keep, tfit, search_more=True))
+            if np.nanmax(searched.fit_error, initial=0.0) < np.nanmax(tfit.fit_error, initial=0.0):
+                tfit = searched
     except NoModeFound as exc:  # no mode at all: nothing in the records but rounding noise
         if mfit is None:
             try:
