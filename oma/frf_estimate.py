@@ -14,6 +14,15 @@ Random Data, 4th ed., 2010, chapters on single- and multiple-input FRF estimates
 left unexplained (``gamma^2_o`` the multiple coherence); for one input this is the familiar
 ``eps[|H|] = sqrt(1 - gamma^2) / (|gamma| sqrt(2 n_d))``.
 
+The noise spectrum ``S_nn,o`` is smooth, but its estimate at one line has only ``n_d - q + 1``
+degrees of freedom: 2.8 for a 20 s record cut into 6.6 s segments with three force inputs. The
+inverse variances that weight the modal fit are then heavy-tailed (the inverse of a chi-square
+with under 4 degrees of freedom has no variance), and a few lines that came out quiet by chance
+dominate it. So ``S_nn,o`` is averaged over adjacent lines until it has :data:`NOISE_DOF` degrees
+of freedom (:func:`noise_lines`); ``[S_uu^-T]_ii`` is kept per line, the variance being
+conditional on the measured inputs. See docs/output_only.md, session 31, for what this did to the
+force-based fits.
+
 Records of the same pose are combined by pooling their spectra (segment-weighted), each record's
 own harmonic lines being left out of the pool; lines that are harmonics in every record are
 dropped from the estimate (forced response, not free response).
@@ -37,6 +46,7 @@ __all__ = [
     "frf_from_spectra",
     "estimate_frf",
     "frf_agreement",
+    "noise_lines",
 ]
 
 Estimator = Literal["h1", "h2", "hv"]
@@ -98,6 +108,35 @@ class FRFEstimate:
         return np.clip(mag * (1 - n_sigma * eps), 0.0, None), mag * (1 + n_sigma * eps)
 
 
+#: Degrees of freedom the output noise spectrum behind the random error is averaged to (see the
+#: module notes and :func:`noise_lines`).
+NOISE_DOF = 24.0
+
+
+def noise_lines(n_averages: float, n_inputs: int) -> int:
+    """Adjacent lines the output noise spectrum is averaged over: the smallest odd number whose
+    ``n_d - q + 1`` degrees of freedom per line add up to :data:`NOISE_DOF` (1 for records with
+    24 or more averages per input beyond the first)."""
+    dof = max(n_averages - n_inputs + 1, 1.0)
+    n = int(np.ceil(NOISE_DOF / dof - 1e-9))
+    return n + 1 - n % 2
+
+
+def _line_average(x, n: int):
+    """Mean over ``n`` adjacent lines along the first axis (fewer at the ends), of the finite values
+    only; lines that are not finite stay as they are. Summed directly, not as a running sum, whose
+    cancellation turns the small values beside large ones negative."""
+    if n <= 1 or x.shape[0] < 2:
+        return x
+    from scipy.ndimage import convolve1d
+
+    ok = np.isfinite(x)
+    ones = np.ones(n)
+    total = convolve1d(np.where(ok, x, 0.0), ones, axis=0, mode="constant")
+    count = convolve1d(ok.astype(float), ones, axis=0, mode="constant")
+    return np.where(ok, total / np.maximum(count, 1.0), x)
+
+
 def frf_from_spectra(spectra: Spectra, *, estimator: Estimator = "h1", noise_psd_ratio: float | None = None):
     """FRF matrix, ordinary and multiple coherence, and random error from Welch spectra.
 
@@ -136,6 +175,7 @@ def frf_from_spectra(spectra: Spectra, *, estimator: Estimator = "h1", noise_psd
         explained = np.real(np.einsum("foi,fij,foj->fo", h1, suu_t, np.conj(h1)))
         multiple = np.clip(explained / auto_y, 0.0, 1.0)
     noise = np.clip(auto_y * (1.0 - multiple), 0.0, None)  # (nf, p)
+    noise = _line_average(noise, noise_lines(spectra.n_averages, n_in))
     dof = max(spectra.n_averages - n_in + 1, 1.0)
     var = noise[:, :, None] * np.real(np.diagonal(inv_suu_t, axis1=1, axis2=2))[:, None, :] / dof
     if estimator == "h1":
