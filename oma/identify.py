@@ -4,7 +4,10 @@ Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
 
 0. Records: one pose (joint angles within :data:`oma._identify_checks.SAME_POSE_TOLERANCE_DEG`),
    each cut window long enough for its force spectrum to separate the milling harmonics from the
-   background force; otherwise a :class:`~oma.errors.RecordError`.
+   background force; otherwise a :class:`~oma.errors.RecordError`. Records sampled far above what
+   the fits read (accelerometers at 10-51.2 kHz) are decimated first, by the rule of
+   :mod:`oma.decimation` (at least 4 kHz, ten times the band's top, 2.5 times the tooth-passing
+   frequency); not rounded displacement, whose grid the likelihood of step 5 uses.
 1. Harmonics: spindle and tooth-passing lines of each record, the spindle frequency refined from the
    force spectrum (:mod:`oma.harmonics`).
 2. Background force variance per axis from the force PSD with the harmonics removed.
@@ -33,12 +36,13 @@ Steps (robomill issue 3; Nguyen & Melkote 2020 for steps 1-4):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Sequence
 
 import numpy as np
 
 from ._arrays import readonly as _ro
+from .decimation import analysis_factor, decimated, white_power
 from .detectability import Detectability, detectability
 from .errors import RecordError
 from ._identify_checks import (artefact_warnings, check_duration, check_same_pose, h1_disagreement, h1_misfit,
@@ -163,6 +167,12 @@ class Identification:
         static compliance of modes above it (:func:`oma._upper_residual.upper_residual`). Where it
         is present the model carries it as its residual compliance (the H1 fit's own, for a model
         from the H1 fit).
+    analysis_rate_hz : float
+        The rate the records were analysed at, Hz: theirs, or lower where they were decimated
+        (:mod:`oma.decimation`). ``frf``, ``harmonics`` and the fits are at this rate;
+        ``noise_variance_N2`` and ``min_noise_variance_N2`` are at the recorded rate (white levels:
+        decimated, the background's variance is divided by the filter's
+        :func:`oma.decimation.white_power` and multiplied by the factor).
     """
 
     model: ModalModel
@@ -181,6 +191,7 @@ class Identification:
     background: tuple = field(default=(), repr=False)
     detectability: Detectability | None = field(default=None, repr=False)
     upper_residual: UpperResidual | None = field(default=None, repr=False)
+    analysis_rate_hz: float | None = None
 
     def __post_init__(self):
         for name in ("frf_fit_error", "noise_variance_N2", "min_noise_variance_N2"):
@@ -208,6 +219,7 @@ class Identification:
             "warnings": list(self.warnings),
             "uncertainty": self.uncertainty(),
             "upper_residual": None if self.upper_residual is None else self.upper_residual.to_dict(),
+            "analysis_rate_hz": _num(self.analysis_rate_hz),
         }
 
     def standard_errors(self) -> tuple[np.ndarray, np.ndarray, int]:
@@ -318,6 +330,7 @@ def identify(
     max_fit_error: float = 0.5,
     n_trials: int = 100,
     rng=0,
+    decimate: bool = True,
 ) -> Identification:
     """Identify the tool-tip modal model from one or more milling records of the same pose.
 
@@ -343,6 +356,10 @@ def identify(
         Realisations in the detectability simulation.
     rng : int or numpy.random.Generator
         Seed of the detectability simulation (the verdict is reproducible by default).
+    decimate : bool
+        Records sampled far above what the fits read are decimated first (:func:`analysis_factor`;
+        the rate used is ``analysis_rate_hz``). Variances are reported at the recorded rate either
+        way. False: the recorded rate throughout.
 
     Returns
     -------
@@ -361,10 +378,35 @@ def identify(
     """
     with single_threaded_blas():
         return _identify(records, method=method, nperseg=nperseg, band_hz=band_hz,
-                         refine_harmonics=refine_harmonics, max_fit_error=max_fit_error, n_trials=n_trials, rng=rng)
+                         refine_harmonics=refine_harmonics, max_fit_error=max_fit_error, n_trials=n_trials, rng=rng,
+                         decimate=decimate)
 
 
-def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_error, n_trials, rng) -> Identification:
+def _analysis_records(records, band_hz):
+    """The records at the rate the fits read (:mod:`oma.decimation`) and the factor. Rounded
+    displacement is kept at its rate: the time-domain likelihood uses its grid, which filtering
+    would blur. The force sensor's white errors are those the filter leaves (``white_power(q) / q``
+    of their variance)."""
+    if any(prepare_record(r).quantisation_step_m for r in records):
+        return records, 1
+    q = analysis_factor(records, band_hz if band_hz is not None else (0.0, MAX_BAND_HZ))
+    if q == 1:
+        return records, 1
+    keep = white_power(q) / q  # of a white noise's variance, per sample
+    out = []
+    for r in records:
+        d, s = decimated(r, q), r.sensors
+        if s is not None:
+            # the sensor's white noise and rounding (step^2 / 12), as the filter leaves them
+            d = replace(d, sensors=replace(
+                s, force_noise_variance_N2=None if s.force_noise_variance_N2 is None else s.force_noise_variance_N2 * keep,
+                force_resolution_N=None if s.force_resolution_N is None else s.force_resolution_N * np.sqrt(keep)))
+        out.append(d)
+    return out, q
+
+
+def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_error, n_trials, rng,
+              decimate=True) -> Identification:
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, not {method!r}")
     records = list(records)
@@ -375,6 +417,8 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         if abs(r.sample_rate_hz - fs) > 1e-9 * fs:
             raise RecordError(r.path, "sample_rate_hz", f"{fs} Hz like the first record", f"{r.sample_rate_hz} Hz")
     check_same_pose(records)
+    records, q = _analysis_records(records, band_hz) if decimate else (records, 1)
+    fs = float(records[0].sample_rate_hz)
     warnings: list[str] = []
 
     signals: list[PreparedSignals] = [prepare_record(r) for r in records]
@@ -383,6 +427,8 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
     harmonics, backgrounds = _milling_lines(records, signals, fs, refine_harmonics, warnings)
     durations = np.array([s.duration_s for s in signals])
     noise_var = np.sum([b.variance_N2 * d for b, d in zip(backgrounds, durations)], axis=0) / durations.sum()
+    # the white level of the background, which the decimation filter's roll-off lowered
+    noise_var = noise_var / white_power(q)
 
     est = estimate_frf(signals, harmonics=harmonics, estimator="h1", nperseg=nperseg)
     band = _fit_band(est, fs) if band_hz is None else (float(band_hz[0]), float(band_hz[1]))
@@ -467,8 +513,9 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         model=model,
         frf=est.table,
         frf_fit_error=ferr,
-        noise_variance_N2=noise_var,
-        min_noise_variance_N2=det.min_variance_N2,
+        # white variances per sample at the recorded rate: q times the analysis rate's
+        noise_variance_N2=noise_var * q,
+        min_noise_variance_N2=det.min_variance_N2 * q,
         excitation_sufficient=sufficient,
         trusted=trusted,
         harmonics=tuple(harmonics),
@@ -480,6 +527,7 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         background=tuple(backgrounds),
         detectability=det,
         upper_residual=upper,
+        analysis_rate_hz=fs,
     )
 
 
