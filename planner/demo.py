@@ -271,7 +271,6 @@ def _step_learn(example: Example, report: Report) -> None:
     with that posterior (``robomill plan --model``): what the cuts themselves back, and the best cut
     they prove. The commands a user would type, run in-process; the posterior is kept beside the
     report for them."""
-    from planner.learn.outcomes_io import read_cuts
     from planner.learn.support import describe_best_backed
 
     d = example.directory
@@ -281,8 +280,7 @@ def _step_learn(example: Example, report: Report) -> None:
     figure = report.figure_dir / "plan_learned.png"
     planned = _robomill_json(["plan", str(d / "setup.yaml"), "--model", str(posterior), "-o", str(figure)])
     sec = report.section("Learning from test cuts")
-    sec.text(f"<code>robomill learn</code> on the example's {read_cuts(d / 'cuts.csv', tool=example.setup.tool).n_cuts} "
-             "test cuts "
+    sec.text(f"<code>robomill learn</code> on the example's {learned['n_cuts']} test cuts "
              "(cuts.csv) with the planning model as the prior: cross-validated accuracy "
              f"{learned['accuracy_before']:.2f} before, {learned['accuracy_after']:.2f} after; the parameter the "
              f"cuts moved most against its prior: {learned['cause']}. The posterior is written to posterior.yaml.")

@@ -59,6 +59,7 @@ def test_learn_writes_a_posterior_that_reads_back(files, capsys, suggest_for):
                 "suggested", "warnings"):
         assert key in res
     assert res["predictions_table_error"] >= 0  # the predictions' table checked against direct limits
+    assert res["n_cuts"] == len((d / "cuts.csv").read_text().strip().splitlines()) - 1  # every row but the header
     assert res["map_model"]["format"] == "robomill-modal/1"
     assert res["cause"] in ("frequency", "stiffness", "damping", "Ktc", "Krc")
     # a shallow cut is surely stable, a 50 mm slot surely chatters

@@ -185,6 +185,7 @@ def _cmd_learn(args) -> int:
     post = result.posterior
     payload = result.to_dict()
     payload["warnings"] = input_warnings + payload["warnings"]
+    payload["n_cuts"] = int(cuts.n_cuts)
     payload["predictions"] = None
     payload["predictions_table_error"] = None
     payload["suggested"] = None
