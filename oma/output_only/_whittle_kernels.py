@@ -124,7 +124,6 @@ def _likelihood_terms(v, c, n, gain, x, weight, u, d, log_w, min_ratio):
     sinv = np.empty((l, l), dtype=np.complex128)
     gmat = np.empty((l, l), dtype=np.complex128)
     gv_ = np.empty((l, mq), dtype=np.complex128)     # G V
-    vhg = np.empty((mq, l), dtype=np.complex128)     # V^H G
     for k in range(n_k):
         if not _cholesky_inverse(s, k, min_ratio, linv, diag):
             return False, 0.0, 0.0, ar, gr, bu, gv, 0.0
@@ -164,12 +163,6 @@ def _likelihood_terms(v, c, n, gain, x, weight, u, d, log_w, min_ratio):
                 for b in range(l):
                     acc += gmat[a, b] * v[k, b, j]
                 gv_[a, j] = acc
-        for i in range(mq):
-            for a in range(l):
-                acc = 0.0j
-                for b in range(l):
-                    acc += np.conj(v[k, b, i]) * gmat[b, a]
-                vhg[i, a] = acc
         g_k = gain[k]
         tr = 0.0
         for i in range(mq):
@@ -186,7 +179,9 @@ def _likelihood_terms(v, c, n, gain, x, weight, u, d, log_w, min_ratio):
             for a in range(l):
                 acc = 0.0j
                 for i in range(mq):
-                    acc += c[r, i] * vhg[i, a]
+                    # (V^H G)[i, a] = conj((G V)[a, i]): G is Hermitian to the bit (both of its terms
+                    # are formed as conjugate pairs), so the product is not formed twice
+                    acc += c[r, i] * np.conj(gv_[a, i])
                 b_ra = g_k * acc
                 bur += b_ra * u[r, a]
                 gv[r, a] += b_ra / d[k, r]
