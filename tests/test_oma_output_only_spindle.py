@@ -103,6 +103,24 @@ def test_a_measured_force_is_fitted_as_orders_of_the_tracked_angle():
         assert abs(err) < K_TOL and covered, (err, covered)
 
 
+def test_the_lines_of_another_signal_are_those_of_the_dense_basis():
+    # ResponseHarmonics.line_amplitudes (power sums of the tracked angle) against the dense design
+    # of harmonic_basis with each line's phase, solved by lstsq_normal: the same amplitudes
+    from oma._linalg import lstsq_normal
+    from oma.harmonics import harmonic_basis
+
+    rec = _record(1, speed=lambda t: 1.0025 - 0.005 * t / 20.0, with_force=True)
+    h = identify_output_only([rec], scaling="measured_force").modes.harmonics[0]
+    assert h.tracked and h.angle_deviation_rad is not None and h.orders.size == h.freq_hz.size
+    force = np.array(rec.force[:, : h.angle_deviation_rad.size])
+    t = np.arange(force.shape[1]) / rec.sample_rate_hz
+    dense = lstsq_normal(harmonic_basis(t, h.freq_hz, trend=True,
+                                        phase_rad=np.outer(h.signs * h.orders, h.angle_deviation_rad)), force.T)
+    expect = (dense[2::2] - 1j * dense[3::2]).T
+    got = h.line_amplitudes(force, rec.sample_rate_hz)
+    assert np.max(np.abs(got - expect)) < 1e-9 * np.max(np.abs(expect))
+
+
 def test_cut_over_part_of_the_record_is_windowed():
     env = lambda t: np.clip((t - 3.0) / 0.5, 0, 1) * np.clip((17.0 - t) / 0.5, 0, 1)  # noqa: E731
     result = identify_output_only([_record(2, envelope=env)])

@@ -117,10 +117,13 @@ class ResponseHarmonics:
         ``loss``, ``spread``; empty without lines).
     speed_variation : float
         Peak-to-peak relative variation of the tracked spindle speed (0 when not tracked).
-    line_phase_rad : ndarray, shape (n_h, n), or None
-        Each line's phase beyond ``2 pi f t`` over the record when tracked (the basis the lines
-        were fitted in, :func:`oma.harmonics.harmonic_basis`'s ``phase_rad``: a measured force's
-        lines are fitted in the same); None when not tracked.
+    orders, signs : ndarray, shape (n_h,)
+        Each line as an order of the spindle angle (a folded line's order is that of the multiple
+        that folded) and the sign of its fold (-1 where ``h f0 - k fs`` is negative).
+    angle_deviation_rad : ndarray, shape (n,), or None
+        The tracked spindle angle's deviation from ``2 pi f0 t`` over the record; None when not
+        tracked. With ``orders`` and ``signs`` it is the basis the lines were fitted in
+        (:meth:`line_amplitudes`).
     """
 
     spindle_hz: float
@@ -137,7 +140,9 @@ class ResponseHarmonics:
     steady: bool = True
     steadiness: dict = field(default_factory=dict, repr=False)
     speed_variation: float = 0.0
-    line_phase_rad: np.ndarray | None = field(default=None, repr=False)
+    orders: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    signs: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    angle_deviation_rad: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
         object.__setattr__(self, "freq_hz", _ro(self.freq_hz))
@@ -147,12 +152,24 @@ class ResponseHarmonics:
         object.__setattr__(self, "significant", _ro(self.significant, bool))
         object.__setattr__(self, "residual", _ro(self.residual))
         object.__setattr__(self, "aliased", _ro(self.aliased, bool))
-        if self.line_phase_rad is not None:
-            object.__setattr__(self, "line_phase_rad", _ro(self.line_phase_rad))
+        object.__setattr__(self, "orders", _ro(self.orders, int))
+        object.__setattr__(self, "signs", _ro(self.signs))
+        if self.angle_deviation_rad is not None:
+            object.__setattr__(self, "angle_deviation_rad", _ro(self.angle_deviation_rad))
 
     @property
     def found_hz(self) -> np.ndarray:
         return self.freq_hz[self.significant]
+
+    def line_amplitudes(self, x, sample_rate_hz: float) -> np.ndarray:
+        """Complex amplitudes (l, n_h) of these lines in another signal ``x`` (l, n) of the same
+        record and span (a measured force): fitted in the basis the response's lines were, with the
+        trend (:func:`oma.harmonics.fit_angle_orders`)."""
+        x = np.array(x, dtype=float, ndmin=2)
+        t = np.arange(x.shape[1]) / float(sample_rate_hz)
+        coef, _ = fit_angle_orders(x, t, _angle(t, self.spindle_hz, self.angle_deviation_rad), self.orders,
+                                   self.signs, with_fit=False)
+        return (coef[2::2] - 1j * coef[3::2]).T
 
     def to_dict(self) -> dict:
         return {"spindle_hz": float(self.spindle_hz), "nominal_spindle_hz": float(self.nominal_spindle_hz),
@@ -227,13 +244,7 @@ def remove_response_harmonics(y, sample_rate_hz: float, spindle_rpm: float | Non
     significant = np.any(snr ** 2 > 10.0 ** (threshold_db / 10.0), axis=0)
     return ResponseHarmonics(f0, nominal, int(teeth), freqs, tooth, amp, noise, significant, res, aliased,
                              tracked=tracked, steady=bool(steadiness.get("steady", True)), steadiness=steadiness,
-                             speed_variation=variation, line_phase_rad=_line_phase(dphi, orders, sign))
-
-
-def _line_phase(dphi, orders, sign):
-    """Each line's phase beyond ``2 pi f t`` (n_h, n), rad, as an order of the tracked angle whose
-    deviation is ``dphi`` (folded lines with their sign); None when not tracked."""
-    return None if dphi is None else np.outer(np.asarray(sign) * np.asarray(orders), dphi)
+                             speed_variation=variation, orders=orders, signs=sign, angle_deviation_rad=dphi)
 
 
 def _angle(t, f0, dphi):

@@ -679,18 +679,11 @@ def _lines(records, slices, modes: OutputOnlyModes, quantity, scaling, select):
                 return None, f"{r.name or 'record'} has no cut.axial_depth_m"
             force.append(tooth_force_harmonics(r.tool, with_spindle(r.cut, h.spindle_hz), coef, h_orders))
         else:
-            from ..harmonics import harmonic_basis
-            from .._linalg import lstsq_normal
-
             f_rec = np.array(r.force[:, sl])
             if np.any(np.all(np.isnan(f_rec), axis=1)):
                 return None, f"{r.name or 'record'} lacks force channels for measured_force scaling"
-            t = np.arange(f_rec.shape[1]) / r.sample_rate_hz
             # in the basis the response's lines were fitted in (orders of the tracked spindle angle)
-            basis = harmonic_basis(t, h.freq_hz, trend=True, phase_rad=h.line_phase_rad)
-            cf = lstsq_normal(basis, f_rec.T)
-            amp = (cf[2::2] - 1j * cf[3::2]).T
-            force.append(amp[:, use])
+            force.append(h.line_amplitudes(f_rec, r.sample_rate_hz)[:, use])
             h_orders = np.zeros_like(h_orders)  # measured force: same clock, no unknown angle
         which.append(i)
         lines.append(hz)
