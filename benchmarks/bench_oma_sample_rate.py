@@ -103,41 +103,44 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.force_based:
         return force_based(sorted(args.rates), args.seeds)
-    rows = []
-    for fs in sorted(args.rates):
-        both = []
-        for decimate in (True, False):
-            runs = [one_run(fs, decimate) for _ in range(args.repeats)]
-            both.append((statistics.median(r["cpu"] for r in runs), max(r["rss_mb"] for r in runs), runs[-1]))
-        rows.append((fs, *both))
-        print(f"  {fs:g} Hz done", file=sys.stderr, flush=True)
+    rows = _measure(sorted(args.rates), lambda fs, decimate: [one_run(fs, decimate) for _ in range(args.repeats)])
     print(f"20 s accelerations of the paper cell, tooth case; median of {args.repeats} runs, one core")
     print("| rate (Hz) | analysed at (Hz) | CPU (s) | CPU undecimated (s) | ratio | peak memory (MB) | "
           "undecimated (MB) | modes (Hz / % damping) | undecimated |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for fs, (cpu, rss, run), (cpu_f, rss_f, run_f) in rows:
-        print(f"| {fs:g} | {run['analysis_rate_hz']:g} | {cpu:.2f} | {cpu_f:.2f} | {cpu_f / cpu:.1f} | {rss:.0f} | "
-              f"{rss_f:.0f} | {_modes(run['modes'])} | {_modes(run_f['modes'])} |")
+    for fs, (cpu, rss, runs), (cpu_f, rss_f, runs_f) in rows:
+        print(f"| {fs:g} | {runs[-1]['analysis_rate_hz']:g} | {cpu:.2f} | {cpu_f:.2f} | {cpu_f / cpu:.1f} | {rss:.0f} | "
+              f"{rss_f:.0f} | {_modes(runs[-1]['modes'])} | {_modes(runs_f[-1]['modes'])} |")
     return 0
 
 
-def force_based(rates, seeds) -> int:
+def _measure(rates, runs_of):
+    """Per rate, shipped and undecimated: (median CPU, largest peak memory, the runs) of
+    ``runs_of(fs, decimate)``."""
     rows = []
     for fs in rates:
         both = []
         for decimate in (True, False):
-            runs = [one_run(fs, decimate, seed) for seed in range(1, seeds + 1)]
-            both.append((statistics.median(r["cpu"] for r in runs), max(r["rss_mb"] for r in runs),
-                         sum(r["exact"] and r["trusted"] for r in runs), runs))
+            runs = runs_of(fs, decimate)
+            both.append((statistics.median(r["cpu"] for r in runs), max(r["rss_mb"] for r in runs), runs))
         rows.append((fs, *both))
         print(f"  {fs:g} Hz done", file=sys.stderr, flush=True)
+    return rows
+
+
+def force_based(rates, seeds) -> int:
+    rows = _measure(rates, lambda fs, decimate: [one_run(fs, decimate, seed) for seed in range(1, seeds + 1)])
     print(f"20 s of force and acceleration of the paper cell, force-based identify; seeds 1-{seeds}, one core")
     print("| rate (Hz) | analysed at (Hz) | CPU median (s) | undecimated (s) | ratio | peak memory (MB) | "
           "undecimated (MB) | true modes, trusted | undecimated |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for fs, (cpu, rss, ok, runs), (cpu_f, rss_f, ok_f, _) in rows:
+
+    def ok(runs):
+        return f"{sum(r['exact'] and r['trusted'] for r in runs)} of {len(runs)}"
+
+    for fs, (cpu, rss, runs), (cpu_f, rss_f, runs_f) in rows:
         print(f"| {fs:g} | {runs[0]['analysis_rate_hz']:g} | {cpu:.2f} | {cpu_f:.2f} | {cpu_f / cpu:.1f} | {rss:.0f} | "
-              f"{rss_f:.0f} | {ok} of {len(runs)} | {ok_f} of {len(runs)} |")
+              f"{rss_f:.0f} | {ok(runs)} | {ok(runs_f)} |")
     return 0
 
 
