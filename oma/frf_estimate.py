@@ -20,8 +20,8 @@ inverse variances that weight the modal fit are then heavy-tailed (the inverse o
 with under 4 degrees of freedom has no variance), and a few lines that came out quiet by chance
 dominate it. So ``S_nn,o`` is averaged over adjacent lines until it has :data:`NOISE_DOF` degrees
 of freedom (:func:`noise_lines`); ``[S_uu^-T]_ii`` is kept per line, the variance being
-conditional on the measured inputs. See docs/output_only.md, session 31, for what this did to the
-force-based fits.
+conditional on the measured inputs. The README's "Shop sampling rates" (session 31) gives what this
+did to the force-based fits.
 
 Records of the same pose are combined by pooling their spectra (segment-weighted), each record's
 own harmonic lines being left out of the pool; lines that are harmonics in every record are

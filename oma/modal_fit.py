@@ -226,7 +226,9 @@ class _ModalNLLS:
         return int(self.natural_frequency_hz.size)
 
     def start(self, keep) -> ModalModel:
-        """The modes ``keep`` as a ModalModel, the start of a refit without the others."""
+        """The modes ``keep`` as a ModalModel, the start of a refit without the others (and without
+        any whose shape vanished: it has no mass to give)."""
+        keep = np.asarray(keep) & (np.linalg.norm(self.phi, axis=1) > 0)
         phi = self.phi[keep]
         norms = np.linalg.norm(phi, axis=1)
         return ModalModel(self.natural_frequency_hz[keep], self.damping_ratio[keep],
@@ -237,9 +239,9 @@ class _ModalNLLS:
 #: of a spurious mode converges in tens (4-48 in the traced 10 kHz record, where one other took 261
 #: to reach the fit a 39-evaluation one had reached): the others only close the gap it leaves. A
 #: removal the remaining modes cannot absorb (the only mode along an axis) wanders for thousands,
-#: 2.5 s each at 10 kHz. A capped refit's misfit is an upper bound of its
-#: optimum's, so the cap can only keep a mode, never drop one. 200 instead of 50: the same modes in
-#: 48 records at 1-10 kHz, CPU median 0.4-0.9 s instead of 0.3-0.5 s.
+#: 2.5 s each at 10 kHz. A capped refit's misfit is an upper bound of its optimum's, so the cap can
+#: only keep a mode, never drop one. 200 instead of 50: the same modes in 48 records at 1-10 kHz,
+#: CPU median 0.4-0.9 s instead of 0.3-0.5 s.
 REMOVAL_MAX_NFEV = 50
 
 
@@ -267,14 +269,16 @@ def _select_modal(f, h, wt, entries, slots, fit: _ModalNLLS, *, residual: bool, 
     dropped = []
     while fit.n_modes > 1:
         current = bic(fit)
-        cands = []
+        cands = {}
         for r in range(fit.n_modes):
-            keep = np.arange(fit.n_modes) != r
-            cands.append(_modal_nlls(f, h, wt, entries, slots, fit.start(keep), residual=residual,
-                                     max_damping=max_damping, max_nfev=REMOVAL_MAX_NFEV))
-        scores = [bic(c) for c in cands]
-        r = int(np.argmin(scores))
-        if scores[r] >= current:
+            start = fit.start(np.arange(fit.n_modes) != r)
+            if start.n_modes:
+                cands[r] = _modal_nlls(f, h, wt, entries, slots, start, residual=residual, max_damping=max_damping,
+                                       max_nfev=REMOVAL_MAX_NFEV)
+        if not cands:
+            break
+        r = min(cands, key=lambda j: bic(cands[j]))
+        if bic(cands[r]) >= current:
             break
         dropped.append(float(fit.natural_frequency_hz[r]))
         fit = cands[r]
