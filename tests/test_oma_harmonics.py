@@ -103,7 +103,7 @@ def test_lines_as_orders_of_the_spindle_angle_are_the_dense_least_squares(tracke
     # solved by lstsq_normal is the independent reference
     from oma._linalg import lstsq_normal
     from oma.harmonics import fit_angle_orders, harmonic_basis
-    from oma.output_only.harmonics import _line_phase, _line_set
+    from oma.output_only.harmonics import _line_set
 
     fs, f0 = 1650.0, 116.7
     n = 6000
@@ -116,7 +116,8 @@ def test_lines_as_orders_of_the_spindle_angle_are_the_dense_least_squares(tracke
     if segment is not None:
         sl = slice(*segment)
         t, y, dphi = t[sl], y[:, sl], None if dphi is None else dphi[sl]
-    basis = harmonic_basis(t, freqs, trend=True, phase_rad=_line_phase(dphi, orders, sign))
+    phase = None if dphi is None else np.outer(sign * orders, dphi)  # each line's phase beyond 2 pi f t
+    basis = harmonic_basis(t, freqs, trend=True, phase_rad=phase)
     dense = lstsq_normal(basis, y.T)
     coef, fit = fit_angle_orders(y, t, 2 * np.pi * f0 * t + (0 if dphi is None else dphi), orders, sign)
     np.testing.assert_allclose(coef, dense, rtol=0, atol=1e-10 * np.abs(dense).max())
