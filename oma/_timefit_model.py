@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal as sps
 
+from ._linalg import orthonormal_basis
 from .harmonics import fit_harmonic_signal, harmonic_basis
 from .synthetic import hold_equalised, mode_filter
 
@@ -159,7 +160,7 @@ class _Problem:
         """
         x, _ = self.full_design(fn, zeta)
         n_rows = x.shape[0]
-        qx = np.linalg.qr(x)[0] if x.shape[1] else np.zeros((n_rows, 0))
+        qx = orthonormal_basis(x)
         y = np.concatenate([r["y"] for r in self.records], axis=1) * self.out_weight[:, None]
         if output is not None:
             y = y[output : output + 1]
@@ -243,7 +244,7 @@ def _prepare(signals, harmonics, inputs, outputs, derivative=0, keep=None):
         w = None if keep is None or keep[i] is None or np.all(keep[i]) else np.asarray(keep[i], dtype=float)
         if w is not None:
             nuis, y = nuis * w[:, None], y * w
-        q_nuis = np.linalg.qr(nuis)[0] if nuis.shape[1] else np.zeros((n, 0))
+        q_nuis = orthonormal_basis(nuis)
         recs.append({"p": p, "p_held": hold_equalised(p), "y": y, "y_proj": y - (y @ q_nuis) @ q_nuis.T, "t": t,
                      "nuis": nuis, "q_nuis": q_nuis, "fs": fs, "outputs": list(outputs), "inputs": list(inputs),
                      "step": s.quantisation_step_m, "derivative": derivative, "w": w})

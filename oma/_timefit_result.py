@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._arrays import readonly as _ro
+from ._linalg import orthonormal_basis
 from .modal import ModalModel
 from .quantised import MIN_BLOCKS, block_labels, sandwich_se
 
@@ -117,7 +118,7 @@ def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6, n_used=Non
     if g_count < MIN_BLOCKS or n_m == 0:
         return nan, g_count
     n_tot, k = xd.shape
-    q_x, _ = np.linalg.qr(xd)
+    q_x = orthonormal_basis(xd)
     w2 = prob.out_weight ** 2
     d = np.zeros((beta.shape[0], n_tot, 2 * n_m))
     for j in range(2 * n_m):

@@ -140,3 +140,25 @@ def test_the_comb_energy_is_the_dft_at_the_spindle_multiples():
     h = np.arange(1, int(500.0 / f0) + 1)
     dense = float(np.sum(np.abs(x @ np.exp(-2j * np.pi * np.outer(h * f0, t)).T) ** 2))
     assert _comb_energy(x, fs, f0, 500.0) == pytest.approx(dense, rel=1e-12)
+
+
+@pytest.mark.parametrize("case", ["lines", "scaled_and_nearly_dependent", "dependent"])
+def test_an_orthonormal_basis_projects_as_householder_qr_does(case):
+    # orthonormal_basis (Cholesky QR, twice when the columns' angles are far from square) spans
+    # what numpy's Householder QR spans: the projections agree, and its columns are orthonormal
+    from oma._linalg import orthonormal_basis
+    from oma.harmonics import harmonic_basis
+
+    rng = np.random.default_rng(1)
+    n = 20000
+    if case == "lines":
+        a = harmonic_basis(np.arange(n) / 5000.0, 45.0 * np.arange(1, 40), trend=True)
+    else:
+        a = rng.standard_normal((n, 10)) * np.logspace(0, 6, 10)
+        a[:, 9] = a[:, 8] + (1e-5 * 1e6 * rng.standard_normal(n) if case != "dependent" else 0.0)
+    q, ref = orthonormal_basis(a), np.linalg.qr(a)[0]
+    c = rng.standard_normal((n, 5))
+    np.testing.assert_allclose(q @ (q.T @ c), ref @ (ref.T @ c), rtol=0, atol=1e-9 * np.abs(c).max())
+    if case != "dependent":
+        np.testing.assert_allclose(q.T @ q, np.eye(a.shape[1]), rtol=0, atol=1e-12)
+    assert orthonormal_basis(np.zeros((n, 0))).shape == (n, 0)
