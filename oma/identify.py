@@ -382,16 +382,16 @@ def identify(
                          decimate=decimate)
 
 
-def _analysis_records(records, band_hz):
-    """The records at the rate the fits read (:mod:`oma.decimation`) and the factor. Rounded
-    displacement is kept at its rate: the time-domain likelihood uses its grid, which filtering
-    would blur. The force sensor's white errors are those the filter leaves (``white_power(q) / q``
-    of their variance)."""
-    if any(prepare_record(r).quantisation_step_m for r in records):
-        return records, 1
+def _analysis_records(records, signals, band_hz):
+    """The records at the rate the fits read (:mod:`oma.decimation`), their prepared signals and the
+    factor (``records`` and ``signals`` as they are when it is 1). Rounded displacement is kept at
+    its rate: the time-domain likelihood uses its grid, which filtering would blur. The force
+    sensor's white errors are those the filter leaves (``white_power(q) / q`` of their variance)."""
+    if any(s.quantisation_step_m for s in signals):
+        return records, signals, 1
     q = analysis_factor(records, band_hz if band_hz is not None else (0.0, MAX_BAND_HZ))
     if q == 1:
-        return records, 1
+        return records, signals, 1
     keep = white_power(q) / q  # of a white noise's variance, per sample
     out = []
     for r in records:
@@ -402,7 +402,7 @@ def _analysis_records(records, band_hz):
                 s, force_noise_variance_N2=None if s.force_noise_variance_N2 is None else s.force_noise_variance_N2 * keep,
                 force_resolution_N=None if s.force_resolution_N is None else s.force_resolution_N * np.sqrt(keep)))
         out.append(d)
-    return out, q
+    return out, [prepare_record(r) for r in out], q
 
 
 def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_error, n_trials, rng,
@@ -417,11 +417,14 @@ def _identify(records, *, method, nperseg, band_hz, refine_harmonics, max_fit_er
         if abs(r.sample_rate_hz - fs) > 1e-9 * fs:
             raise RecordError(r.path, "sample_rate_hz", f"{fs} Hz like the first record", f"{r.sample_rate_hz} Hz")
     check_same_pose(records)
-    records, q = _analysis_records(records, band_hz) if decimate else (records, 1)
+    signals: list[PreparedSignals] = [prepare_record(r) for r in records]
+    if decimate:
+        records, signals, q = _analysis_records(records, signals, band_hz)
+    else:
+        q = 1
     fs = float(records[0].sample_rate_hz)
     warnings: list[str] = []
 
-    signals: list[PreparedSignals] = [prepare_record(r) for r in records]
     for r, s in zip(records, signals):
         check_duration(r, s.n_samples)
     harmonics, backgrounds = _milling_lines(records, signals, fs, refine_harmonics, warnings)

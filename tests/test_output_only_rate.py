@@ -100,6 +100,7 @@ def test_the_force_based_identify_decimates_a_shop_rate_record_and_not_a_rounded
     # at the recorded rate as a white level (1826 / 2227 / 2007 against 1835 / 2228 / 2006 N^2
     # undecimated; the truth 1856 / 2224 / 2008)
     from oma.identify import _analysis_records, identify
+    from oma.signals import prepare_record
     from oma.synthetic import PAPER_BACKGROUND_VARIANCE_N2
 
     fs = 8000.0
@@ -119,5 +120,5 @@ def test_the_force_based_identify_decimates_a_shop_rate_record_and_not_a_rounded
     np.testing.assert_allclose(fast.noise_variance_N2, background, rtol=0.05)
     # a rounded displacement keeps its rate: the likelihood uses its grid
     rounded = synthetic_record(paper_like_model(), duration_s=2.0, sample_rate_hz=fs, rng=5)
-    assert _analysis_records([rounded], None)[1] == 1
-    assert _analysis_records([rec], None)[1] == 2
+    assert _analysis_records([rounded], [prepare_record(rounded)], None)[2] == 1
+    assert _analysis_records([rec], [prepare_record(rec)], None)[2] == 2
