@@ -104,40 +104,44 @@ class _Problem:
         projected out once per record (an orthonormal basis ``Q``); the rest is solved through
         the normal equations of the projected columns. With ``full`` also returns, per output,
         the coefficients of the shared columns and per record the dynamic and nuisance parts.
+
+        The projected columns ``(I - Q Q^T) A`` are never formed: their Gram matrix is
+        ``A^T A - (Q^T A)^T (Q^T A)``, their product with the projected output ``A^T y_proj``
+        (``Q^T y_proj = 0``), and the fit ``A c - Q (Q^T A c)``. That is one product with the
+        ``(n, k)`` basis instead of two (a 20 s record at 5 kHz has ``k`` = 112 nuisance columns
+        against 18 of the modes).
         """
         blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
         n_shared = blocks[0][0].shape[1]
         n_own = [b[1].shape[1] for b in blocks]
         n_cols = n_shared + sum(n_own)
-        proj = []
+        cols, in_span = [], []
         for (sh, own), rec in zip(blocks, self.records):
             a = np.hstack([sh, own])
-            qn = rec["q_nuis"]
-            proj.append(a - qn @ (qn.T @ a))
+            cols.append(a)
+            in_span.append(rec["q_nuis"].T @ a)
         gram = np.zeros((n_cols, n_cols))
         col = n_shared
         slices = []
-        for a, k in zip(proj, n_own):
+        for a, qa, k in zip(cols, in_span, n_own):
             idx = np.r_[0:n_shared, col : col + k]
-            gram[np.ix_(idx, idx)] += a.T @ a
+            gram[np.ix_(idx, idx)] += a.T @ a - qa.T @ qa
             slices.append(idx)
             col += k
         scale = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
         gs = gram / np.outer(scale, scale)
         gs[np.diag_indices_from(gs)] += 1e-12
-        resid_all, dyn_all = [], []
-        for k in range(len(self.outputs)):
-            rhs = np.zeros(n_cols)
-            for a, idx, rec in zip(proj, slices, self.records):
-                rhs[idx] += a.T @ rec["y_proj"][k]
-            c = np.linalg.solve(gs, rhs / scale) / scale
-            parts = []
-            for a, idx, rec in zip(proj, slices, self.records):
-                fit = a @ c[idx]
-                resid_all.append(self.out_weight[k] * (rec["y_proj"][k] - fit))
-                parts.append(c[idx])
-            dyn_all.append(parts)
-        resid = np.concatenate(resid_all)
+        n_out = len(self.outputs)
+        rhs = np.zeros((n_cols, n_out))
+        for a, idx, rec in zip(cols, slices, self.records):
+            rhs[idx] += a.T @ rec["y_proj"].T
+        coef = np.linalg.solve(gs, rhs / scale[:, None]) / scale[:, None]
+        # every output's fit at once: one pass over the basis, not one per output
+        fits = [a @ coef[idx] - rec["q_nuis"] @ (qa @ coef[idx])
+                for a, qa, idx, rec in zip(cols, in_span, slices, self.records)]
+        resid = np.concatenate([self.out_weight[k] * (rec["y_proj"][k] - fit[:, k])
+                                for k in range(n_out) for fit, rec in zip(fits, self.records)])
+        dyn_all = [[coef[idx, k] for idx in slices] for k in range(n_out)]
         if not full:
             return resid
         coefs = [parts[0][:n_shared] for parts in dyn_all]
@@ -209,6 +213,23 @@ class _Problem:
             row += n
             col += o.shape[1]
         return x, nuis
+
+    def dynamic_design(self, fn, zeta):
+        """The columns of :meth:`full_design` that depend on the poles (the shared ones and each
+        record's free responses, without the nuisance columns), stacked over records, and their
+        indices among :meth:`full_design`'s columns."""
+        blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
+        n_shared = blocks[0][0].shape[1]
+        x = np.zeros((sum(b[0].shape[0] for b in blocks), n_shared + sum(b[1].shape[1] for b in blocks)))
+        x_cols = [np.arange(n_shared)]
+        row, col, out = 0, n_shared, n_shared
+        for (sh, own), rec in zip(blocks, self.records):
+            n, k = own.shape
+            x[row : row + n, :n_shared] = sh
+            x[row : row + n, out : out + k] = own
+            x_cols.append(np.arange(col, col + k))
+            row, col, out = row + n, col + k + rec["nuis"].shape[1], out + k
+        return x, np.concatenate(x_cols)
 
     def unpack_residues(self, coefs, n_modes):
         a = np.zeros((n_modes, 3, 3))

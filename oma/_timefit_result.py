@@ -121,14 +121,18 @@ def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6, n_used=Non
     q_x = orthonormal_basis(xd)
     w2 = prob.out_weight ** 2
     d = np.zeros((beta.shape[0], n_tot, 2 * n_m))
+    # only the columns that depend on the poles are differenced (the nuisance columns, most of the
+    # design at shop rates, would difference to zero)
+    x_dyn, cols = prob.dynamic_design(fn, zeta)
+    beta_dyn = beta[:, cols]
     for j in range(2 * n_m):
         f1, z1 = fn.copy(), zeta.copy()
         if j < n_m:
             f1[j] *= np.exp(step)
         else:
             z1[j - n_m] *= np.exp(step)
-        dx = (prob.full_design(f1, z1)[0] - xd) / step
-        d[:, :, j] = beta @ dx.T
+        dx = (prob.dynamic_design(f1, z1)[0] - x_dyn) / step
+        d[:, :, j] = beta_dyn @ dx.T
     d -= np.einsum("nk,okj->onj", q_x, np.einsum("nk,onj->okj", q_x, d))  # projected off the linear columns
     s_mat = np.einsum("o,oni,onj->ij", w2, d, d)
     scores = np.add.reduceat(np.einsum("o,onj,on->nj", w2, d, resid), starts, axis=0)

@@ -172,10 +172,14 @@ def plot_detectability(det, *, ax=None):
             a0.plot(det.min_variance_N2[k], det.resolution_m * 1e6, "o", color=f"C{k}")
     if det.resolution_m is not None:
         a0.axhline(det.resolution_m * 1e6, color="k", ls="--", label=f"resolution {det.resolution_m * 1e6:.1f} um")
+    else:
+        a0.text(0.5, 0.5, "no displacement resolution known: not assessed", transform=a0.transAxes,
+                ha="center", va="center")
     a0.set_xlabel("white force variance (N^2)")
     a0.set_ylabel("peak-to-valley displacement (um)")
     a0.set_title(f"detectability over {det.duration_s:.2f} s (dotted: measured background)")
-    a0.legend(fontsize="small")
+    if a0.get_legend_handles_labels()[0]:
+        a0.legend(fontsize="small")
     fig.tight_layout()
     return fig, a0
 

@@ -97,3 +97,11 @@ def test_no_resolution_means_not_assessed():
     det = detectability(paper_like_model(), 1.1, 1000.0, None, [1, 1, 1])
     assert np.all(det.sufficient) and not np.any(det.assessed)
     assert np.all(np.isnan(det.min_variance_N2))
+    # nothing to compare a peak-to-valley with: none simulated, and the figure says so
+    assert np.all(np.isnan(det.peak_to_valley_m))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    fig, ax = det.plot()
+    assert any("not assessed" in t.get_text() for t in ax.texts) and not ax.get_lines()
+    matplotlib.pyplot.close(fig)
