@@ -646,6 +646,10 @@ def _excitation(model, records, signals, harmonics, fs, durations, noise_var, me
     # are never less trustworthy than one of them)
     resolution = None
     for r, s in zip(records, signals):
+        if s.motion_quantity != "displacement":
+            # a displacement sensor's resolution says nothing of velocity or acceleration channels
+            # (session 32: the synthetic records declare the paper's tracker beside accelerometers)
+            continue
         res = r.sensors.displacement_resolution_m if r.sensors is not None else None
         res = res if res is not None else s.quantisation_step_m
         if res is not None:
@@ -657,7 +661,7 @@ def _excitation(model, records, signals, harmonics, fs, durations, noise_var, me
     # also reach the resolution. A model fitted to an under-excited record is itself unreliable,
     # so the simulated (Monte-Carlo) verdict alone could be fooled by it. Best record, as above.
     p2v_meas = np.zeros(3)
-    for s, h in zip(signals, harmonics):
+    for s, h in zip(signals, harmonics) if resolution is not None else ():
         ok = s.force_axes
         f_bg = np.zeros_like(s.force_N)
         hz = h.freq_hz if h is not None else np.zeros(0)
@@ -675,7 +679,10 @@ def _excitation(model, records, signals, harmonics, fs, durations, noise_var, me
             if p2v_meas[a] < resolution:
                 sufficient[a] = False
     if resolution is None:
-        warnings.append("no displacement resolution known; detectability not assessed")
+        displacement = any(sig.motion_quantity == "displacement" for sig in signals)
+        warnings.append("no displacement resolution known; detectability not assessed" if displacement else
+                        "no displacement recorded (velocity or acceleration): the detectability by a displacement "
+                        "sensor's resolution is not assessed")
     short = {}
     for a in measured_axes:
         if det.assessed[a] and not det.sufficient[a]:

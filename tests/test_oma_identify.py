@@ -103,6 +103,11 @@ def test_the_h1_fit_of_a_5khz_accelerometer_record_is_the_truth():
     err = np.abs(dominant_errors(idn.model))
     assert np.all(err[:, 0] < 0.005) and np.all(err[:, 1] < 0.05) and np.all(err[:, 2] < 0.02), err
     assert idn.trusted
+    # the record declares the paper's tracker (15 um) beside its accelerometers: a displacement
+    # sensor's resolution says nothing of them, so no detectability is assessed (nor simulated)
+    assert rec.sensors.displacement_resolution_m == 1.5e-5
+    assert not np.any(idn.detectability.assessed) and np.all(np.isnan(idn.detectability.peak_to_valley_m))
+    assert any("no displacement recorded" in w for w in idn.warnings), idn.warnings
 
 
 @pytest.mark.parametrize("seed", [301])
