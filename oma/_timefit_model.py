@@ -191,45 +191,30 @@ class _Problem:
             out[g] = base - float(np.sum(proj * np.linalg.solve(gram, proj.T).T))
         return out
 
-    def full_design(self, fn, zeta):
-        """Design matrix of all records stacked, ``(n_total, K)``, and the nuisance column mask.
+    def full_design(self, fn, zeta, *, nuisance: bool = True):
+        """Design matrix of all records stacked, ``(n_total, K)``, and the nuisance column mask
+        ``(K,)``.
 
         Columns: the shared ones (residues, residual), then per record its free-response and
-        nuisance columns (zero on the other records' rows).
+        nuisance columns (zero on the other records' rows). With ``nuisance=False`` the nuisance
+        columns are left out (the columns that depend on the poles, ``~mask`` of the full design):
+        the block sandwich differences only those.
         """
         blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
         n_shared = blocks[0][0].shape[1]
-        own = [np.hstack([b[1], rec["nuis"]]) for b, rec in zip(blocks, self.records)]
-        cols = n_shared + sum(o.shape[1] for o in own)
-        n_total = sum(o.shape[0] for o in own)
-        x = np.zeros((n_total, cols))
-        nuis = np.zeros(cols, dtype=bool)
+        own = [np.hstack([b[1], rec["nuis"]]) if nuisance else b[1] for b, rec in zip(blocks, self.records)]
+        mask = np.concatenate([np.zeros(n_shared, dtype=bool)] + [
+            np.r_[np.zeros(b[1].shape[1], dtype=bool), np.ones(rec["nuis"].shape[1], dtype=bool)]
+            for b, rec in zip(blocks, self.records)])
+        x = np.zeros((sum(o.shape[0] for o in own), n_shared + sum(o.shape[1] for o in own)))
         row, col = 0, n_shared
-        for b, o, rec in zip(blocks, own, self.records):
+        for b, o in zip(blocks, own):
             n = o.shape[0]
             x[row : row + n, :n_shared] = b[0]
             x[row : row + n, col : col + o.shape[1]] = o
-            nuis[col + b[1].shape[1] : col + o.shape[1]] = True
             row += n
             col += o.shape[1]
-        return x, nuis
-
-    def dynamic_design(self, fn, zeta):
-        """The columns of :meth:`full_design` that depend on the poles (the shared ones and each
-        record's free responses, without the nuisance columns), stacked over records, and their
-        indices among :meth:`full_design`'s columns."""
-        blocks = [self.regressors(rec, fn, zeta) for rec in self.records]
-        n_shared = blocks[0][0].shape[1]
-        x = np.zeros((sum(b[0].shape[0] for b in blocks), n_shared + sum(b[1].shape[1] for b in blocks)))
-        x_cols = [np.arange(n_shared)]
-        row, col, out = 0, n_shared, n_shared
-        for (sh, own), rec in zip(blocks, self.records):
-            n, k = own.shape
-            x[row : row + n, :n_shared] = sh
-            x[row : row + n, out : out + k] = own
-            x_cols.append(np.arange(col, col + k))
-            row, col, out = row + n, col + k + rec["nuis"].shape[1], out + k
-        return x, np.concatenate(x_cols)
+        return x, mask
 
     def unpack_residues(self, coefs, n_modes):
         a = np.zeros((n_modes, 3, 3))

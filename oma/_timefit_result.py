@@ -123,15 +123,15 @@ def _ls_block_sandwich(prob, fn, zeta, beta, xd, resid, *, step=1e-6, n_used=Non
     d = np.zeros((beta.shape[0], n_tot, 2 * n_m))
     # only the columns that depend on the poles are differenced (the nuisance columns, most of the
     # design at shop rates, would difference to zero)
-    x_dyn, cols = prob.dynamic_design(fn, zeta)
-    beta_dyn = beta[:, cols]
+    x_dyn, nuisance = prob.full_design(fn, zeta, nuisance=False)
+    beta_dyn = beta[:, ~nuisance]
     for j in range(2 * n_m):
         f1, z1 = fn.copy(), zeta.copy()
         if j < n_m:
             f1[j] *= np.exp(step)
         else:
             z1[j - n_m] *= np.exp(step)
-        dx = (prob.dynamic_design(f1, z1)[0] - x_dyn) / step
+        dx = (prob.full_design(f1, z1, nuisance=False)[0] - x_dyn) / step
         d[:, :, j] = beta_dyn @ dx.T
     d -= np.einsum("nk,okj->onj", q_x, np.einsum("nk,onj->okj", q_x, d))  # projected off the linear columns
     s_mat = np.einsum("o,oni,onj->ij", w2, d, d)

@@ -73,6 +73,17 @@ def assert_robot_modes(model, *, freq, damping, stiffness):
         assert abs(model.stiffness_N_m[j] / k - 1) < stiffness, (k, model.stiffness_N_m)
 
 
+def logged_searches(monkeypatch) -> list:
+    """The ``search`` flag of every time-domain fit ``identify`` runs from now on (appended as it runs)."""
+    import oma.identify as identify_module
+
+    searches = []
+    fit = identify_module.fit_time_domain
+    monkeypatch.setattr(identify_module, "fit_time_domain",
+                        lambda *a, **kw: searches.append(kw["search"]) or fit(*a, **kw))
+    return searches
+
+
 # ------------------------------------------------------------------ 1. velocity and acceleration
 @pytest.fixture(scope="module")
 def long_displacement():
@@ -116,12 +127,7 @@ def test_isolated_spikes_are_left_out_and_the_model_stays_trusted(long_displacem
     # modes are right and, so few samples left out, the model is trusted. The H1 fit of the
     # spiked record has one mode (it misses the H1 estimate by 32-89 %): the time-domain search
     # adds the two it lacks (session 31)
-    import oma.identify as identify_module
-
-    searches = []
-    fit = identify_module.fit_time_domain
-    monkeypatch.setattr(identify_module, "fit_time_domain",
-                        lambda *a, **kw: searches.append(kw["search"]) or fit(*a, **kw))
+    searches = logged_searches(monkeypatch)
     acc = fft_derivative(long_displacement, 2)
     n0, n1 = 500, 9500  # away from the derivative's ringing ends
     data = np.array(acc.data[:, n0:n1])

@@ -15,7 +15,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_oma_identify_robust import ROBOT, ROBOT_AND_TOOL, assert_robot_modes, fft_derivative, simulated
+from test_oma_identify_robust import (ROBOT, ROBOT_AND_TOOL, assert_robot_modes, fft_derivative, logged_searches,
+                                     simulated)
 
 from oma._upper_residual import RESIDUAL_SIGMAS, line_correlation_factor, upper_residual
 from oma.cutting import Sensors
@@ -107,12 +108,7 @@ def test_an_accelerometer_record_with_the_tool_modes_is_not_trusted_and_says_why
     # residual compliance holds the tool modes' (noise-free record: within 2 % of sum u^2/k).
     # The H1 start explains the H1 estimate (0.5 %), so it lacks no mode and no search is run for
     # one (session 32: the search had cost 35 s of 60 here and changed nothing)
-    import oma.identify as identify_module
-
-    searches = []
-    fit = identify_module.fit_time_domain
-    monkeypatch.setattr(identify_module, "fit_time_domain",
-                        lambda *a, **kw: searches.append(kw["search"]) or fit(*a, **kw))
+    searches = logged_searches(monkeypatch)
     rec = fft_derivative(simulated(ROBOT_AND_TOOL, 20.0, seed=1, force_noise=0.0, resolution=0.0), 2)
     idn = identify([rec])
     assert searches and not any(searches), searches
